@@ -70,3 +70,11 @@ def test_rotation_bin_round_trip(n):
     for k in range(n):
         assert g.angle_to_bin(g.bin_to_angle(k, n), n) == k
     assert g.angle_to_bin(-2 * math.pi / n, n) == n - 1
+
+
+def test_image_shape_scales_with_pixel_size():
+    assert g.image_shape() == g.IMAGE_SHAPE == (320, 160)
+    assert g.image_shape(0.0125) == (80, 40)
+    point = np.array([0.6, 0.1, 0.05])
+    pixel = g.world_to_pixel(point, 0.0125)
+    assert np.allclose(g.pixel_to_world(pixel, 0.05, 0.0125), point)

@@ -134,19 +134,27 @@ def invert_pose(pose: Pose) -> Pose:
 # ---------------------------------------------------------------------------------------------
 
 
-def world_to_pixel(points: np.ndarray) -> np.ndarray:
+def image_shape(pixel_size: float = PIXEL_SIZE) -> tuple[int, int]:
+    """(rows, cols) of an image covering the workspace at `pixel_size` (320 x 160 by default)."""
+    extent = BOUNDS[:2, 1] - BOUNDS[:2, 0]
+    return int(round(extent[1] / pixel_size)), int(round(extent[0] / pixel_size))
+
+
+def world_to_pixel(points: np.ndarray, pixel_size: float = PIXEL_SIZE) -> np.ndarray:
     """World xyz (..., 3) -> continuous (row, col) (..., 2) of the top-down image."""
     points = np.asarray(points, dtype=float)
-    row = (points[..., 1] - BOUNDS[1, 0]) / PIXEL_SIZE
-    col = (points[..., 0] - BOUNDS[0, 0]) / PIXEL_SIZE
+    row = (points[..., 1] - BOUNDS[1, 0]) / pixel_size
+    col = (points[..., 0] - BOUNDS[0, 0]) / pixel_size
     return np.stack([row, col], axis=-1)
 
 
-def pixel_to_world(pixels: np.ndarray, height: np.ndarray | float) -> np.ndarray:
+def pixel_to_world(
+    pixels: np.ndarray, height: np.ndarray | float, pixel_size: float = PIXEL_SIZE
+) -> np.ndarray:
     """(row, col) (..., 2) and height (...) -> world xyz (..., 3) in the top-down frame."""
     pixels = np.asarray(pixels, dtype=float)
-    x = BOUNDS[0, 0] + pixels[..., 1] * PIXEL_SIZE
-    y = BOUNDS[1, 0] + pixels[..., 0] * PIXEL_SIZE
+    x = BOUNDS[0, 0] + pixels[..., 1] * pixel_size
+    y = BOUNDS[1, 0] + pixels[..., 0] * pixel_size
     z = np.broadcast_to(np.asarray(height, dtype=float), x.shape)
     return np.stack([x, y, z], axis=-1)
 
