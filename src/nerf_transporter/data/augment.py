@@ -1,0 +1,130 @@
+"""SE(2) data augmentation: one random rotation + translation of the image plane, applied with OpenCV
+to every image of a sample and, identically, to the poses its labels come from.
+
+A transform rotates image content by `angle` about the image centre, counter-clockwise about the
+view's z axis (rows run along y, columns along x), then shifts it by `shift` (rows, cols). For a
+pose in a view frame (see `labels.pose_in_view`) this is the planar rigid motion
+R' = Rz(angle) R, xy' = rotated and shifted xy, z unchanged; labels are then recomputed from the
+moved poses, so the pixels follow the content and the rotation bin stays consistent:
+
+- a flat place pose and the pick both turn by `angle`, so their yaw difference (the bin) is
+  unchanged;
+- a tilted place pose (the heightmap methods, or the residual tilt of a `mira` view) has its tilt
+  axis turned by `angle`: its roll, pitch and yaw in that frame change together, and the bin moves
+  by the yaw change of the place minus that of the pick, computed exactly from the moved pose.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from nerf_transporter import geometry as g
+from nerf_transporter.data.labels import ViewAction, continuous_pixel
+
+
+@dataclass(frozen=True)
+class Se2Transform:
+    angle: float  # radians, counter-clockwise about the view's z axis
+    shift: tuple[float, float]  # (rows, cols) applied after the rotation
+    shape: tuple[int, int]  # (rows, cols) of the images it applies to
+
+    @property
+    def centre(self) -> np.ndarray:
+        """(row, col) of the rotation centre (pixel centres sit at integer coordinates)."""
+        return (np.asarray(self.shape, dtype=float) - 1.0) / 2.0
+
+    def cv_matrix(self) -> np.ndarray:
+        """2 x 3 forward map for `cv2.warpAffine` in OpenCV's (x = col, y = row) coordinates."""
+        c, s = math.cos(self.angle), math.sin(self.angle)
+        rotation = np.array([[c, -s], [s, c]])
+        centre_xy = self.centre[::-1]
+        offset = centre_xy + np.asarray(self.shift, dtype=float)[::-1] - rotation @ centre_xy
+        return np.hstack([rotation, offset[:, None]])
+
+    def apply_pixels(self, pixels: np.ndarray) -> np.ndarray:
+        """Continuous (row, col) pixels (..., 2) -> their position after the transform."""
+        xy = np.asarray(pixels, dtype=float)[..., ::-1]
+        matrix = self.cv_matrix()
+        moved = xy @ matrix[:, :2].T + matrix[:, 2]
+        return moved[..., ::-1]
+
+    def apply_pose(self, pose: g.Pose, pixel_size: float) -> g.Pose:
+        """Move a view-frame pose with the content of the image."""
+        position, quat = pose
+        pixel = continuous_pixel(position, pixel_size)
+        moved = g.pixel_to_world(self.apply_pixels(pixel), position[2], pixel_size)
+        rotation = g.rot_z(self.angle) @ g.quat_to_matrix(quat)
+        return moved, g.matrix_to_quat(rotation)
+
+    def apply_image(self, image: np.ndarray) -> np.ndarray:
+        """Warp one image [H, W] or [H, W, C] (nearest neighbour, zeros outside)."""
+        if image.shape[:2] != self.shape:
+            raise ValueError(f"image of shape {image.shape[:2]} for a transform of {self.shape}")
+        dtype = image.dtype
+        source = image.astype(np.float32) if dtype == np.float16 else image
+        warped = cv2.warpAffine(
+            source,
+            self.cv_matrix(),
+            (self.shape[1], self.shape[0]),
+            flags=cv2.INTER_NEAREST,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=0,
+        )
+        return warped.astype(dtype, copy=False).reshape(image.shape)
+
+    def apply_images(self, images: np.ndarray) -> np.ndarray:
+        """Warp a stack [N, H, W(, C)] of images."""
+        return np.stack([self.apply_image(image) for image in images])
+
+
+def identity_transform(shape: tuple[int, int]) -> Se2Transform:
+    return Se2Transform(0.0, (0.0, 0.0), tuple(shape))
+
+
+def sample_transform(
+    rng: np.random.Generator,
+    shape: tuple[int, int],
+    keep_inside: Sequence[np.ndarray],
+    *,
+    max_angle: float = math.pi,
+    max_shift_fraction: float = 0.5,
+    margin: float = 1.0,
+    attempts: int = 100,
+) -> Se2Transform:
+    """Random rotation (uniform in +-max_angle) and shift (uniform up to a fraction of the image)
+    that keeps every pixel of `keep_inside` at least `margin` pixels inside the image.
+
+    Falls back to the identity if no such transform is found in `attempts` draws.
+    """
+    rows, cols = shape
+    points = np.asarray(keep_inside, dtype=float).reshape(-1, 2)
+    for _ in range(attempts):
+        transform = Se2Transform(
+            float(rng.uniform(-max_angle, max_angle)),
+            (
+                float(rng.uniform(-1.0, 1.0) * max_shift_fraction * rows),
+                float(rng.uniform(-1.0, 1.0) * max_shift_fraction * cols),
+            ),
+            (rows, cols),
+        )
+        moved = np.round(transform.apply_pixels(points))
+        inside = (moved >= margin) & (moved <= np.array([rows, cols]) - 1 - margin)
+        if inside.all():
+            return transform
+    return identity_transform(shape)
+
+
+def augment_view_action(
+    view_action: ViewAction, transform: Se2Transform, pixel_size: float
+) -> ViewAction:
+    """Apply the same image-plane transform to the pick (top-down) and place (view) poses."""
+    return ViewAction(
+        place_view=view_action.place_view,
+        pick=transform.apply_pose(view_action.pick, pixel_size),
+        place=transform.apply_pose(view_action.place, pixel_size),
+    )
