@@ -7,7 +7,9 @@ import importlib
 import sys
 
 # sub-command -> ("module:function", one-line help). Each function takes argv and returns an exit code.
-TOOLS: dict[str, tuple[str, str]] = {}
+TOOLS: dict[str, tuple[str, str]] = {
+    "report": ("nerf_transporter.evaluation.report:main", "results table (markdown or --csv)"),
+}
 
 
 def _usage() -> str:

@@ -1,0 +1,8 @@
+"""Closed-loop evaluation (DESIGN section 10).
+
+- `rollout`: one test episode for any method (`Evaluator`, `EvaluationSpec`, `EpisodeResult`);
+- `cache`: evaluation imagery cached on disk by task, setting, seed and imagery config;
+- `metrics`: the `SuccessRate` torchmetrics metric and the 95% Wilson interval;
+- `callback`: `SuccessRateCallback`, validation success during training;
+- `report`: `nerf-transporter report`, the results table.
+"""

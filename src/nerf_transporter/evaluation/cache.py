@@ -1,0 +1,77 @@
+"""On-disk cache of evaluation imagery, keyed by task, setting, seed and a hash of the imagery config.
+
+Re-evaluating a checkpoint then reuses the imagery of every seed instead of refitting its NeRF.
+Files are npz (no pickle) written to a temporary name and renamed, so an interrupted write never
+leaves a half file behind.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+IMAGERY_KEYS = ("colour", "height", "views")
+
+
+def config_hash(config: dict) -> str:
+    """Short, stable hash of a JSON-serialisable config."""
+    text = json.dumps(config, sort_keys=True, default=_json_default)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _json_default(value: object) -> object:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"cannot hash a config value of type {type(value).__name__}: {value!r}")
+
+
+class ImageryCache:
+    """Imagery (colour, height, views) per episode under `root/<task>-<setting>/<seed>-<hash>.npz`."""
+
+    def __init__(self, root: str | os.PathLike) -> None:
+        self.root = Path(root)
+
+    def path(self, task: str, setting: str, seed: int, key: str) -> Path:
+        return self.root / f"{task}-{setting}" / f"{seed}-{key}.npz"
+
+    def load(self, task: str, setting: str, seed: int, key: str) -> dict[str, np.ndarray] | None:
+        """The cached imagery, or None when absent; a corrupt file is reported, not silently used."""
+        path = self.path(task, setting, seed, key)
+        if not path.exists():
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                missing = [name for name in IMAGERY_KEYS if name not in data.files]
+                if missing:
+                    raise ValueError(f"missing arrays {missing}")
+                return {name: data[name] for name in IMAGERY_KEYS}
+        except (OSError, ValueError) as error:
+            raise ValueError(
+                f"corrupt imagery cache file {path}: {error}; delete it to rebuild"
+            ) from error
+
+    def save(
+        self, task: str, setting: str, seed: int, key: str, imagery: dict[str, np.ndarray]
+    ) -> Path:
+        path = self.path(task, setting, seed, key)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle, temporary = tempfile.mkstemp(
+            dir=path.parent, prefix=f".{path.stem}-", suffix=".npz"
+        )
+        try:
+            with os.fdopen(handle, "wb") as file:
+                np.savez_compressed(file, **{name: imagery[name] for name in IMAGERY_KEYS})
+            os.replace(temporary, path)
+        except BaseException:
+            Path(temporary).unlink(missing_ok=True)
+            raise
+        return path

@@ -1,0 +1,58 @@
+"""Success-rate metric and the 95% Wilson score interval."""
+
+import math
+
+import pytest
+import torch
+
+from nerf_transporter.evaluation.metrics import SuccessRate, summarize, wilson_interval
+
+
+@pytest.mark.parametrize(
+    ("successes", "episodes", "expected"),
+    [
+        # Newcombe (1998), Statistics in Medicine 17:857, Table I, method 3 (Wilson score)
+        (81, 263, (0.2553, 0.3662)),
+        (15, 148, (0.0624, 0.1605)),
+        (0, 20, (0.0, 0.1611)),
+        (1, 29, (0.0061, 0.1718)),
+    ],
+)
+def test_wilson_interval_matches_published_values(successes, episodes, expected):
+    low, high = wilson_interval(successes, episodes)
+    assert low == pytest.approx(expected[0], abs=5e-5)
+    assert high == pytest.approx(expected[1], abs=5e-5)
+
+
+def test_wilson_interval_is_symmetric_and_bounded():
+    low, high = wilson_interval(7, 10)
+    mirrored = wilson_interval(3, 10)
+    assert low == pytest.approx(1 - mirrored[1])
+    assert high == pytest.approx(1 - mirrored[0])
+    assert wilson_interval(10, 10)[1] == pytest.approx(1.0)
+    assert wilson_interval(0, 0) == (0.0, 1.0)
+
+
+def test_wilson_interval_rejects_impossible_counts():
+    with pytest.raises(ValueError, match="invalid counts"):
+        wilson_interval(5, 3)
+    with pytest.raises(ValueError, match="confidence"):
+        wilson_interval(1, 3, confidence=1.5)
+
+
+def test_success_rate_metric_accumulates_and_resets():
+    metric = SuccessRate()
+    metric.update([True, False, True])
+    metric.update(torch.tensor([False]))
+    assert metric.compute().item() == pytest.approx(0.5)
+    assert metric.counts() == (2, 4)
+    metric.reset()
+    with pytest.warns(UserWarning, match="before the ``update``"):
+        assert math.isnan(metric.compute().item())
+
+
+def test_summarize_counts_failure_reasons():
+    summary = summarize(1, 3, ["unreachable", None, "unreachable"])
+    assert summary["success_rate"] == pytest.approx(1 / 3)
+    assert summary["failures"] == {"unreachable": 2}
+    assert summary["ci_low"] < 1 / 3 < summary["ci_high"]
