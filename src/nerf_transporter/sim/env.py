@@ -1,0 +1,218 @@
+"""RavensEnv: a gymnasium environment of one task, one pick-and-place per step."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import gymnasium as gym
+import numpy as np
+import pybullet
+from gymnasium import spaces
+from pybullet_utils.bullet_client import BulletClient
+
+from nerf_transporter import geometry
+from nerf_transporter.sim import assets, cameras
+from nerf_transporter.sim.primitives import pick_and_place
+from nerf_transporter.sim.robot import Robot
+from nerf_transporter.sim.tasks import TASKS
+from nerf_transporter.sim.tasks.base import SETTINGS, Task
+
+RIGS = ("state", "rgbd", "nerf")
+TIME_STEP = 1.0 / 240.0
+TABLE_SIZE = (1.6, 1.6, 0.02)
+VIDEO_CAMERA = cameras.Camera(
+    cameras.intrinsics_matrix(300.0, (360, 480)),
+    cameras.look_at((0.55, -1.25, 0.75), (0.35, 0.0, 0.15)),
+    (360, 480),
+)
+HIDDEN_POSITION = (0.0, 0.0, -50.0)
+
+
+def _pose_space() -> spaces.Tuple:
+    position = spaces.Box(
+        low=geometry.BOUNDS[:, 0].astype(np.float32), high=geometry.BOUNDS[:, 1].astype(np.float32)
+    )
+    return spaces.Tuple((position, spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)))
+
+
+def _camera_space(count: int, size: tuple[int, int], depth: bool) -> spaces.Dict:
+    height, width = size
+    entries = {
+        "rgb": spaces.Box(0, 255, shape=(count, height, width, 3), dtype=np.uint8),
+        "intrinsics": spaces.Box(-np.inf, np.inf, shape=(count, 3, 3), dtype=np.float32),
+        "cam_to_world": spaces.Box(-np.inf, np.inf, shape=(count, 4, 4), dtype=np.float32),
+    }
+    if depth:
+        entries["depth"] = spaces.Box(0.0, np.inf, shape=(count, height, width), dtype=np.float32)
+    return spaces.Dict(entries)
+
+
+class RavensEnv(gym.Env):
+    """UR5e + suction in PyBullet with one task; `step` executes one pick-and-place.
+
+    `rigs` picks what `obs` holds (`state`, `rgbd`, `nerf`; see docs/interfaces.md). Episodes are
+    functions of the reset seed.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 24}
+
+    def __init__(
+        self,
+        task: Task,
+        rigs: Sequence[str] = ("state",),
+        nerf_views: int = 30,
+        nerf_image_size: tuple[int, int] = (480, 640),
+        render_mode: str | None = None,
+    ) -> None:
+        unknown = [rig for rig in rigs if rig not in RIGS]
+        if unknown:
+            raise ValueError(f"unknown rig(s) {unknown}; valid rigs: {', '.join(RIGS)}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"unknown render_mode {render_mode!r}; valid: rgb_array")
+        self.task = task
+        self.rigs = tuple(rigs)
+        self.render_mode = render_mode
+        self.nerf_cameras = (
+            cameras.nerf_cameras(nerf_views, tuple(nerf_image_size)) if "nerf" in rigs else []
+        )
+        self.rgbd_cameras = cameras.rgbd_cameras() if "rgbd" in rigs else []
+        observation = {}
+        if "state" in rigs:
+            observation["state"] = spaces.Box(
+                -np.inf, np.inf, shape=(task.state_dim(),), dtype=np.float32
+            )
+        if "rgbd" in rigs:
+            observation["rgbd"] = _camera_space(3, self.rgbd_cameras[0].image_size, depth=True)
+        if "nerf" in rigs:
+            observation["nerf"] = _camera_space(nerf_views, tuple(nerf_image_size), depth=False)
+        self.observation_space = spaces.Dict(observation)
+        self.action_space = spaces.Dict({"pick": _pose_space(), "place": _pose_space()})
+        self.client = BulletClient(connection_mode=pybullet.DIRECT)
+        self.robot: Robot | None = None
+        self.frame_callback: Callable[[np.ndarray], None] | None = None
+        self.frame_every = 8
+        self._sim_steps = 0
+        self._steps = 0
+
+    # -- gymnasium API -------------------------------------------------------------------------
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        super().reset(seed=seed)
+        client = self.client
+        client.resetSimulation()
+        client.setGravity(0, 0, -9.8)
+        client.setTimeStep(TIME_STEP)
+        table = assets.write_urdf(
+            "table", [assets.Box(TABLE_SIZE)], color=assets.COLORS["table"], mass=0.0
+        )
+        self.table_id = assets.load(
+            client,
+            table,
+            (np.array([0.5, 0.0, -TABLE_SIZE[2] / 2]), np.array([0, 0, 0, 1.0])),
+            fixed=True,
+        )
+        self.robot = Robot(client)
+        self._sim_steps = 0
+        self._steps = 0
+        self.task.reset(self, self.np_random)
+        self.settle()
+        return self._observation(), {"seed": seed}
+
+    def step(self, action: dict) -> tuple[dict, float, bool, bool, dict]:
+        if self.robot is None:
+            raise RuntimeError("call reset() before step()")
+        failure = pick_and_place(self, action["pick"], action["place"])
+        self.settle()
+        self._steps += 1
+        reward, info = self.task.reward(self)
+        terminated = bool(info["success"])
+        truncated = not terminated and self._steps >= self.task.max_steps
+        info["failure"] = failure
+        return self._observation(), reward, terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        """RGB frame of a fixed side camera that sees the robot and the workspace."""
+        if self.render_mode != "rgb_array":
+            return None
+        return cameras.render(self.client, VIDEO_CAMERA)[0]
+
+    def close(self) -> None:
+        if self.client is not None and self.client.isConnected():
+            self.client.disconnect()
+
+    # -- simulation ------------------------------------------------------------------------------
+
+    def step_simulation(self, count: int = 1) -> None:
+        """Advance physics; every `frame_every` steps hand a video frame to `frame_callback`."""
+        for _ in range(count):
+            self.client.stepSimulation()
+            self._sim_steps += 1
+            if self.frame_callback is not None and self._sim_steps % self.frame_every == 0:
+                self.frame_callback(cameras.render(self.client, VIDEO_CAMERA)[0])
+
+    def is_dynamic(self, body: int) -> bool:
+        return (
+            body not in (self.robot.id, self.table_id)
+            and self.client.getDynamicsInfo(body, -1)[0] > 0
+        )
+
+    def settle(self, max_steps: int = 480, check_every: int = 12) -> None:
+        """Step until every movable body is at rest (or `max_steps` passed)."""
+        bodies = [self.client.getBodyUniqueId(k) for k in range(self.client.getNumBodies())]
+        movable = [body for body in bodies if self.is_dynamic(body)]
+        for _ in range(0, max_steps, check_every):
+            self.step_simulation(check_every)
+            speeds = [self.client.getBaseVelocity(body) for body in movable]
+            if all(np.linalg.norm(v) < 2e-3 and np.linalg.norm(w) < 2e-2 for v, w in speeds):
+                return
+
+    # -- observations ----------------------------------------------------------------------------
+
+    def _observation(self) -> dict:
+        observation = {}
+        if "state" in self.rigs:
+            observation["state"] = self.task.state(self)
+        if "rgbd" in self.rigs:
+            observation["rgbd"] = cameras.capture(self.client, self.rgbd_cameras, depth=True)
+        if "nerf" in self.rigs:
+            observation["nerf"] = cameras.capture(self.client, self.nerf_cameras)
+        return observation
+
+    def _without_robot(self, render: Callable[[], tuple]) -> tuple:
+        self.client.resetBasePositionAndOrientation(self.robot.id, HIDDEN_POSITION, (0, 0, 0, 1))
+        try:
+            return render()
+        finally:
+            self.client.resetBasePositionAndOrientation(self.robot.id, (0, 0, 0), (0, 0, 0, 1))
+
+    def render_orthographic(
+        self, roll: float, pitch: float, pixel_size: float = geometry.PIXEL_SIZE
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Ground-truth colour and height of view (roll, pitch), robot not shown (DESIGN section 6)."""
+        return self._without_robot(
+            lambda: cameras.render_orthographic(self.client, roll, pitch, pixel_size)
+        )
+
+    def render_segmentation_top_down(self) -> tuple[np.ndarray, np.ndarray]:
+        """Body ids [H, W] and height [H, W] of the top-down view, robot not shown."""
+        _, height, ids = self._without_robot(
+            lambda: cameras.render_orthographic(self.client, 0.0, 0.0, segmentation=True)
+        )
+        return ids, height
+
+
+def make_env(
+    task: str,
+    setting: str = "normal",
+    *,
+    rigs: Sequence[str] = ("state",),
+    nerf_views: int = 30,
+    nerf_image_size: tuple[int, int] = (480, 640),
+    render_mode: str | None = None,
+) -> RavensEnv:
+    """A `RavensEnv` for `task` in `setting`; unknown names raise ValueError listing valid ones."""
+    if task not in TASKS:
+        raise ValueError(f"unknown task {task!r}; valid tasks: {', '.join(sorted(TASKS))}")
+    if setting not in SETTINGS:
+        raise ValueError(f"unknown setting {setting!r}; valid settings: {', '.join(SETTINGS)}")
+    return RavensEnv(TASKS[task](setting), rigs, nerf_views, nerf_image_size, render_mode)

@@ -1,0 +1,117 @@
+"""The pick-and-place motion primitive with a 6-DoF approach along each pose's z axis.
+
+Pick: move above the pick pose (APPROACH metres along its z axis), descend along -z until the suction
+tip touches something, grasp, lift back. Place: move to APPROACH metres along the place pose's z
+axis, descend until the held object touches something (or the tip passes the place pose by
+OVERSHOOT), release, retreat, return home. Every failure is returned as a reason string.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from nerf_transporter import geometry
+from nerf_transporter.geometry import Pose
+from nerf_transporter.sim.robot import HOME_JOINTS
+
+if TYPE_CHECKING:
+    from nerf_transporter.sim.env import RavensEnv
+
+APPROACH = 0.32  # m, distance of the pre-pick / pre-place pose along the pose's z axis
+OVERSHOOT = 0.02  # m the tip may go past the pick or place pose before the motion times out
+LINEAR_STEP = 0.002  # m per simulation step during straight-line motions
+JOINT_STEP = 0.02  # rad per simulation step during joint-space motions
+
+
+class MotionFailure(Exception):
+    """A motion could not be executed; the message is the failure reason."""
+
+
+def offset_along_z(pose: Pose, distance: float) -> Pose:
+    """`pose` moved by `distance` along its own z axis."""
+    position, quat = pose
+    axis = geometry.quat_to_matrix(quat)[:, 2]
+    return np.asarray(position, dtype=float) + distance * axis, np.asarray(quat, dtype=float)
+
+
+def _solve(env: RavensEnv, pose: Pose, what: str, seed: np.ndarray | None = None) -> np.ndarray:
+    q = env.robot.solve_ik(pose, seed)
+    if q is None:
+        raise MotionFailure(f"unreachable: {what}")
+    return q
+
+
+def move_joints(env: RavensEnv, target: np.ndarray) -> None:
+    """Joint-space interpolation from the current joints to `target`."""
+    start = env.robot.joint_positions()
+    count = max(1, int(np.ceil(np.abs(target - start).max() / JOINT_STEP)))
+    for k in range(1, count + 1):
+        env.robot.drive(start + (target - start) * k / count)
+        env.step_simulation()
+
+
+def move_linear(env: RavensEnv, start: Pose, end: Pose, what: str, stop=None) -> bool:
+    """Straight-line motion of the tip from `start` to `end` (fixed orientation); returns True when
+    `stop()` became true on the way (the motion then ends there)."""
+    distance = float(np.linalg.norm(np.asarray(end[0]) - np.asarray(start[0])))
+    count = max(1, int(np.ceil(distance / LINEAR_STEP)))
+    for k in range(1, count + 1):
+        position = start[0] + (end[0] - start[0]) * k / count
+        env.robot.drive(_solve(env, (position, end[1]), what))
+        env.step_simulation()
+        if stop is not None and stop():
+            return True
+    return False
+
+
+def pick_and_place(env: RavensEnv, pick: Pose, place: Pose) -> str | None:
+    """Execute one pick and place; returns None on completion or the reason it failed."""
+    try:
+        _pick_and_place(env, _normalised(pick), _normalised(place))
+    except MotionFailure as failure:
+        env.robot.release()
+        return str(failure)
+    return None
+
+
+def _normalised(pose: Pose) -> Pose:
+    position = np.asarray(pose[0], dtype=float).reshape(3)
+    quat = np.asarray(pose[1], dtype=float).reshape(4)
+    norm = np.linalg.norm(quat)
+    if not np.isfinite(norm) or norm < 1e-6 or not np.all(np.isfinite(position)):
+        raise MotionFailure("invalid pose: zero or non-finite quaternion or position")
+    return position, quat / norm
+
+
+def _pick_and_place(env: RavensEnv, pick: Pose, place: Pose) -> None:
+    robot = env.robot
+    pre_pick, pre_place = offset_along_z(pick, APPROACH), offset_along_z(place, APPROACH)
+    checks = {
+        "pick pose": pick,
+        "pre-pick pose": pre_pick,
+        "place pose": place,
+        "pre-place pose": pre_place,
+    }
+    for what, pose in checks.items():
+        _solve(env, pose, what, HOME_JOINTS)
+
+    move_joints(env, _solve(env, pre_pick, "pre-pick pose", HOME_JOINTS))
+    if not move_linear(
+        env, pre_pick, offset_along_z(pick, -OVERSHOOT), "pick descent", robot.touching
+    ):
+        raise MotionFailure("timeout: no contact while descending to the pick pose")
+    graspable = [body for body in robot.touching() if env.is_dynamic(body)]
+    if not graspable:
+        raise MotionFailure("pick: the suction tip touched no movable object")
+    robot.activate(graspable[0])
+    move_linear(env, robot.tip_pose(), pre_pick, "lift")
+
+    move_joints(env, _solve(env, pre_place, "pre-place pose", HOME_JOINTS))
+    move_linear(
+        env, pre_place, offset_along_z(place, -OVERSHOOT), "place descent", robot.held_touching
+    )
+    robot.release()
+    move_linear(env, robot.tip_pose(), pre_place, "retreat")
+    move_joints(env, HOME_JOINTS)
