@@ -213,8 +213,9 @@ def write_urdf(
         raise ValueError(f"asset {name!r} has no parts")
     collisions = parts if collision_parts is None else collision_parts
     center = center_of_mass(collisions) if com is None else np.asarray(com, dtype=float)
-    body = "".join(visual_xml(part, color) for part in parts)
-    body += "".join(collision_xml(part) for part in collisions)
+    # one element per line: PyBullet's URDF parser fails on lines of more than a few thousand characters
+    body = "".join(f"\n{visual_xml(part, color)}" for part in parts)
+    body += "".join(f"\n{collision_xml(part)}" for part in collisions)
     text = (
         f'<?xml version="1.0"?>\n<robot name="{name}"><link name="base">'
         f"{inertial_xml(mass, center)}{body}</link></robot>\n"

@@ -111,10 +111,18 @@ def dh_frames(q: np.ndarray) -> list[np.ndarray]:
     return frames
 
 
+def _inverse(transform: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid 4x4 transform."""
+    result = np.eye(4)
+    result[:3, :3] = transform[:3, :3].T
+    result[:3, 3] = -transform[:3, :3].T @ transform[:3, 3]
+    return result
+
+
 _FLANGE_TO_TIP = np.eye(4)
 _FLANGE_TO_TIP[:3, :3] = geometry.rot_x(math.pi)
 _FLANGE_TO_TIP[2, 3] = SUCTION_LENGTH
-_TIP_TO_FLANGE = np.linalg.inv(_FLANGE_TO_TIP)
+_TIP_TO_FLANGE = _inverse(_FLANGE_TO_TIP)
 
 
 def analytic_ik(flange: np.ndarray) -> list[np.ndarray]:
@@ -124,7 +132,7 @@ def analytic_ik(flange: np.ndarray) -> list[np.ndarray]:
     radius = math.hypot(wrist[0], wrist[1])
     if radius < abs(d4):
         return []
-    inverse = np.linalg.inv(flange)
+    inverse = _inverse(flange)
     solutions = []
     for sign1 in (1, -1):
         t1 = math.atan2(wrist[1], wrist[0]) + sign1 * math.acos(d4 / radius) + math.pi / 2
@@ -142,7 +150,7 @@ def analytic_ik(flange: np.ndarray) -> list[np.ndarray]:
                     (-inverse[1, 0] * s1 + inverse[1, 1] * c1) / s5,
                     (inverse[0, 0] * s1 - inverse[0, 1] * c1) / s5,
                 )
-            t14 = np.linalg.inv(_dh(t1, 0)) @ flange @ np.linalg.inv(_dh(t5, 4) @ _dh(t6, 5))
+            t14 = _inverse(_dh(t1, 0)) @ flange @ _inverse(_dh(t5, 4) @ _dh(t6, 5))
             px, py = t14[0, 3], t14[1, 3]
             c3 = (px * px + py * py - a2 * a2 - a3 * a3) / (2 * a2 * a3)
             if abs(c3) > 1:
@@ -150,7 +158,7 @@ def analytic_ik(flange: np.ndarray) -> list[np.ndarray]:
             for sign3 in (1, -1):
                 t3 = sign3 * math.acos(c3)
                 t2 = math.atan2(py, px) - math.atan2(a3 * math.sin(t3), a2 + a3 * math.cos(t3))
-                t34 = np.linalg.inv(_dh(t2, 1) @ _dh(t3, 2)) @ t14
+                t34 = _inverse(_dh(t2, 1) @ _dh(t3, 2)) @ t14
                 t4 = math.atan2(t34[1, 0], t34[0, 0])
                 solutions.append(np.array([t1, t2, t3, t4, t5, t6]))
     return solutions
@@ -158,18 +166,12 @@ def analytic_ik(flange: np.ndarray) -> list[np.ndarray]:
 
 def _nearest_in_limits(q: np.ndarray, reference: np.ndarray) -> np.ndarray | None:
     """Shift each angle by multiples of 2 pi to be nearest `reference` within the joint limits."""
-    result = np.empty(6)
-    for i, (angle, ref) in enumerate(zip(q, reference, strict=True)):
-        angle = ref + float(geometry.wrap_angle(angle - ref))
-        low, high = JOINT_LIMITS[i]
-        if angle > high:
-            angle -= 2 * math.pi
-        elif angle < low:
-            angle += 2 * math.pi
-        if not low <= angle <= high:
-            return None
-        result[i] = angle
-    return result
+    angles = reference + (q - reference + math.pi) % (2 * math.pi) - math.pi
+    angles = np.where(angles > JOINT_LIMITS[:, 1], angles - 2 * math.pi, angles)
+    angles = np.where(angles < JOINT_LIMITS[:, 0], angles + 2 * math.pi, angles)
+    if np.any(angles < JOINT_LIMITS[:, 0]) or np.any(angles > JOINT_LIMITS[:, 1]):
+        return None
+    return angles
 
 
 def _origin(xyz, rpy) -> str:
@@ -230,15 +232,13 @@ class Robot:
         joints), or None when no solution keeps the arm above the table within its joint limits."""
         reference = self.joint_positions() if seed is None else np.asarray(seed, dtype=float)
         flange = geometry.pose_to_matrix(pose) @ _TIP_TO_FLANGE
-        best, best_cost = None, math.inf
-        for q in analytic_ik(flange):
-            q = _nearest_in_limits(q, reference)
-            if q is None or min(frame[2, 3] for frame in dh_frames(q)[2:]) < 0.01:
-                continue
-            cost = float(np.abs(q - reference).sum())
-            if cost < best_cost:
-                best, best_cost = q, cost
-        return best
+        candidates = [_nearest_in_limits(q, reference) for q in analytic_ik(flange)]
+        candidates = [q for q in candidates if q is not None]
+        candidates.sort(key=lambda q: float(np.abs(q - reference).sum()))
+        for q in candidates:
+            if min(frame[2, 3] for frame in dh_frames(q)[2:]) >= 0.01:
+                return q
+        return None
 
     # -- suction -----------------------------------------------------------------------------------
 

@@ -32,6 +32,8 @@ import numpy as np
 from nerf_transporter import geometry
 from nerf_transporter.geometry import Pose
 from nerf_transporter.sim import assets
+from nerf_transporter.sim.primitives import APPROACH, offset_along_z
+from nerf_transporter.sim.robot import HOME_JOINTS
 
 if TYPE_CHECKING:
     from nerf_transporter.sim.env import RavensEnv
@@ -179,6 +181,43 @@ class Task(ABC):
     @staticmethod
     def sample_yaw(rng: np.random.Generator) -> float:
         return float(rng.uniform(0.0, 2 * math.pi))
+
+    def sample_target_pose(
+        self,
+        env: RavensEnv,
+        rng: np.random.Generator,
+        region: tuple[tuple[float, float], tuple[float, float]],
+        body_points: np.ndarray,
+        reach_points: np.ndarray,
+        attempts: int = 100,
+    ) -> Pose:
+        """A target pose: tilt per setting, uniform yaw, uniform (x, y) in `region`, floating so the
+        target's own `body_points` [N, 3] stay above the table, and such that the arm can place at
+        every one of `reach_points` [M, 3] (the object's pickable points, in the object frame).
+        The position is redrawn for a drawn orientation first, so the tilt distribution is kept."""
+        for _ in range(attempts):
+            roll, pitch = self.sample_tilt(rng)
+            rotation = geometry.euler_to_matrix(roll, pitch, self.sample_yaw(rng))
+            quat = geometry.matrix_to_quat(rotation)
+            z = float_height(body_points, rotation)
+            for _ in range(attempts):
+                xy = [rng.uniform(*region[0]), rng.uniform(*region[1])]
+                pose = (np.array([xy[0], xy[1], z]), quat)
+                if placeable(env, pose, reach_points):
+                    return pose
+        raise RuntimeError(f"task {self.name!r}: no reachable target pose in region {region}")
+
+
+def placeable(env: RavensEnv, target: Pose, reach_points: np.ndarray) -> bool:
+    """Whether the arm reaches the place and pre-place poses of an object at `target` picked at
+    any of `reach_points` (object frame); rotation about the approach axis is free (last joint)."""
+    rotation = geometry.quat_to_matrix(target[1])
+    for point in np.asarray(reach_points, dtype=float):
+        place = (np.asarray(target[0]) + rotation @ point, target[1])
+        for pose in (place, offset_along_z(place, APPROACH)):
+            if env.robot.solve_ik(pose, HOME_JOINTS) is None:
+                return False
+    return True
 
 
 def float_height(

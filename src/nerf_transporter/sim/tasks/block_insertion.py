@@ -6,14 +6,12 @@ import math
 
 import numpy as np
 
-from nerf_transporter import geometry
 from nerf_transporter.sim import assets
 from nerf_transporter.sim.tasks.base import (
     Task,
     Tolerance,
     box_corners,
     flat_pose,
-    float_height,
     sample_free_xy,
 )
 
@@ -24,7 +22,7 @@ CLEARANCE = 0.004  # slot clearance per side (m)
 WALL = 0.015  # fixture wall thickness (m)
 SLOT_DEPTH = 0.02
 FLOOR = 0.01
-TARGET_REGION = ((0.38, 0.62), (-0.3, 0.3))
+TARGET_REGION = ((0.3, 0.65), (-0.35, 0.35))
 OBJECT_REGION = ((0.3, 0.7), (-0.4, 0.4))
 
 
@@ -60,15 +58,12 @@ class BlockInsertion(Task):
     tolerance = Tolerance(position=0.02, tilt=math.radians(15), yaw=math.radians(15))
 
     def build(self, env, rng: np.random.Generator) -> None:
-        roll, pitch = self.sample_tilt(rng)
-        rotation = geometry.euler_to_matrix(roll, pitch, self.sample_yaw(rng))
         parts = fixture_parts()
         corners = np.concatenate([box_corners(np.divide(p.size, 2), p.position) for p in parts])
-        (x0, x1), (y0, y1) = TARGET_REGION
-        position = np.array(
-            [rng.uniform(x0, x1), rng.uniform(y0, y1), float_height(corners, rotation)]
-        )
-        target = (position, geometry.matrix_to_quat(rotation))
+        half = SIZE / 2
+        top_face = box_corners((half, half, 0.0), (0.0, 0.0, HEIGHT / 2))[::2]
+        target = self.sample_target_pose(env, rng, TARGET_REGION, corners, top_face)
+        position = target[0]
         fixture = assets.write_urdf("l_fixture", parts, color=assets.COLORS["brown"], mass=0.0)
         self.target_ids = [assets.load(env.client, fixture, target, fixed=True)]
         self.target_poses = [target]
