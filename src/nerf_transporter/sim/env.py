@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 
 import gymnasium as gym
@@ -51,7 +52,8 @@ class RavensEnv(gym.Env):
     """UR5e + suction in PyBullet with one task; `step` executes one pick-and-place.
 
     `rigs` picks what `obs` holds (`state`, `rgbd`, `nerf`; see docs/interfaces.md). Episodes are
-    functions of the reset seed.
+    functions of the reset seed. The `nerf` rig is captured with the arm out of view (as if it had
+    moved away for the capture) unless `nerf_show_robot`; the `rgbd` rig sees the arm at home.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 24}
@@ -63,6 +65,7 @@ class RavensEnv(gym.Env):
         nerf_views: int = 30,
         nerf_image_size: tuple[int, int] = (480, 640),
         render_mode: str | None = None,
+        nerf_show_robot: bool = False,
     ) -> None:
         unknown = [rig for rig in rigs if rig not in RIGS]
         if unknown:
@@ -72,6 +75,7 @@ class RavensEnv(gym.Env):
         self.task = task
         self.rigs = tuple(rigs)
         self.render_mode = render_mode
+        self.nerf_show_robot = nerf_show_robot
         self.nerf_cameras = (
             cameras.nerf_cameras(nerf_views, tuple(nerf_image_size)) if "nerf" in rigs else []
         )
@@ -125,10 +129,10 @@ class RavensEnv(gym.Env):
         self.settle()
         self._steps += 1
         reward, info = self.task.reward(self)
-        terminated = bool(info["success"])
-        truncated = not terminated and self._steps >= self.task.max_steps
+        # The task is over when solved or when its pick-and-places are used up (one for these tasks).
+        terminated = bool(info["success"]) or self._steps >= self.task.max_steps
         info["failure"] = failure
-        return self._observation(), reward, terminated, truncated, info
+        return self._observation(), reward, terminated, False, info
 
     def render(self) -> np.ndarray | None:
         """RGB frame of a fixed side camera that sees the robot and the workspace."""
@@ -175,7 +179,10 @@ class RavensEnv(gym.Env):
         if "rgbd" in self.rigs:
             observation["rgbd"] = cameras.capture(self.client, self.rgbd_cameras, depth=True)
         if "nerf" in self.rigs:
-            observation["nerf"] = cameras.capture(self.client, self.nerf_cameras)
+            capture = functools.partial(cameras.capture, self.client, self.nerf_cameras)
+            observation["nerf"] = (
+                capture() if self.nerf_show_robot else self._without_robot(capture)
+            )
         return observation
 
     def _without_robot(self, render: Callable[[], tuple]) -> tuple:
@@ -209,10 +216,13 @@ def make_env(
     nerf_views: int = 30,
     nerf_image_size: tuple[int, int] = (480, 640),
     render_mode: str | None = None,
+    nerf_show_robot: bool = False,
 ) -> RavensEnv:
     """A `RavensEnv` for `task` in `setting`; unknown names raise ValueError listing valid ones."""
     if task not in TASKS:
         raise ValueError(f"unknown task {task!r}; valid tasks: {', '.join(sorted(TASKS))}")
     if setting not in SETTINGS:
         raise ValueError(f"unknown setting {setting!r}; valid settings: {', '.join(SETTINGS)}")
-    return RavensEnv(TASKS[task](setting), rigs, nerf_views, nerf_image_size, render_mode)
+    return RavensEnv(
+        TASKS[task](setting), rigs, nerf_views, nerf_image_size, render_mode, nerf_show_robot
+    )
