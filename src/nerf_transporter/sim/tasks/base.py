@@ -190,18 +190,23 @@ class Task(ABC):
         body_points: np.ndarray,
         reach_points: np.ndarray,
         attempts: int = 100,
+        taken: Sequence[tuple[np.ndarray, float]] = (),
+        footprint: float = 0.0,
     ) -> Pose:
         """A target pose: tilt per setting, uniform yaw, uniform (x, y) in `region`, floating so the
         target's own `body_points` [N, 3] stay above the table, and such that the arm can place at
         every one of `reach_points` [M, 3] (the object's pickable points, in the object frame).
-        The position is redrawn for a drawn orientation first, so the tilt distribution is kept."""
+        The position is redrawn for a drawn orientation first, so the tilt distribution is kept.
+        With `taken` discs (centre, radius), the target's disc of radius `footprint` avoids them."""
         for _ in range(attempts):
             roll, pitch = self.sample_tilt(rng)
             rotation = geometry.euler_to_matrix(roll, pitch, self.sample_yaw(rng))
             quat = geometry.matrix_to_quat(rotation)
             z = float_height(body_points, rotation)
             for _ in range(attempts):
-                xy = [rng.uniform(*region[0]), rng.uniform(*region[1])]
+                xy = np.array([rng.uniform(*region[0]), rng.uniform(*region[1])])
+                if any(np.linalg.norm(xy - np.asarray(c)[:2]) < footprint + r for c, r in taken):
+                    continue
                 pose = (np.array([xy[0], xy[1], z]), quat)
                 if placeable(env, pose, reach_points):
                     return pose
@@ -254,46 +259,3 @@ def sample_free_xy(
 def flat_pose(xy: Sequence[float], z: float, yaw: float) -> Pose:
     """Pose lying flat on the table at (x, y), body origin at height z."""
     return np.array([xy[0], xy[1], z], dtype=float), geometry.euler_to_quat(0.0, 0.0, yaw)
-
-
-def reachable(env: RavensEnv, tip: Pose) -> bool:
-    """Whether the arm reaches the tip pose `tip` and its pre-pose (the primitive's approach)."""
-    from nerf_transporter.sim.primitives import APPROACH, offset_along_z
-    from nerf_transporter.sim.robot import HOME_JOINTS
-
-    poses = (tip, offset_along_z(tip, APPROACH))
-    return all(env.robot.solve_ik(pose, HOME_JOINTS) is not None for pose in poses)
-
-
-def tip_poses(height: float, radius: float) -> list[Pose]:
-    """Upright tip poses at `height` over the centre and `radius` off it along +-x, +-y (in the
-    frame of an object's target pose): where the suction tip may end when placing it."""
-    upright = np.array([0.0, 0.0, 0.0, 1.0])
-    offsets = [(0, 0), (radius, 0), (-radius, 0), (0, radius), (0, -radius)]
-    return [(np.array([dx, dy, height], dtype=float), upright) for dx, dy in offsets]
-
-
-def sample_reachable_target(
-    env: RavensEnv,
-    rng: np.random.Generator,
-    tilt: tuple[float, float],
-    points: np.ndarray,
-    footprint: float,
-    taken: Sequence[tuple[np.ndarray, float]],
-    region: tuple[tuple[float, float], tuple[float, float]],
-    tips: Sequence[Pose],
-    attempts: int = 200,
-) -> Pose:
-    """Pose of a fixed target with the given (roll, pitch): uniform yaw, a free (x, y) in `region`,
-    floating `TABLE_CLEARANCE` above the table (its local `points`), resampled until the arm reaches
-    every pose of `tips` (tip poses in the target's frame) and their approaches."""
-    for _ in range(attempts):
-        rotation = geometry.euler_to_matrix(*tilt, float(rng.uniform(0.0, 2 * math.pi)))
-        xy = sample_free_xy(rng, footprint, taken, region)
-        pose = (
-            np.array([xy[0], xy[1], float_height(points, rotation)]),
-            geometry.matrix_to_quat(rotation),
-        )
-        if all(reachable(env, geometry.multiply_poses(pose, tip)) for tip in tips):
-            return pose
-    raise RuntimeError(f"no reachable target pose with tilt {tilt} in region {region}")
