@@ -60,7 +60,9 @@ def test_a_cube_dropped_in_a_bowl_stays_there(env):
 
 def test_bowls_float_above_the_table(env):
     env.reset(seed=8)
-    bowls = [body for body in env.task.target_ids + env.task.distractor_ids if not env.is_dynamic(body)]
+    bowls = [
+        body for body in env.task.target_ids + env.task.distractor_ids if not env.is_dynamic(body)
+    ]
     assert len(bowls) > len(env.task.target_ids)
     for body in bowls:
         closest = env.client.getClosestPoints(body, env.table_id, 0.05)
