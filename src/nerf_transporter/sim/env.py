@@ -173,17 +173,18 @@ class RavensEnv(gym.Env):
     # -- observations ----------------------------------------------------------------------------
 
     def _observation(self) -> dict:
-        observation = {}
-        if "state" in self.rigs:
-            observation["state"] = self.task.state(self)
-        if "rgbd" in self.rigs:
-            observation["rgbd"] = cameras.capture(self.client, self.rgbd_cameras, depth=True)
-        if "nerf" in self.rigs:
-            capture = functools.partial(cameras.capture, self.client, self.nerf_cameras)
-            observation["nerf"] = (
-                capture() if self.nerf_show_robot else self._without_robot(capture)
-            )
-        return observation
+        return {rig: self.capture(rig) for rig in self.rigs}
+
+    def capture(self, rig: str):
+        """The observation of one rig (chosen at construction) in the current state."""
+        if rig not in self.rigs:
+            raise ValueError(f"rig {rig!r} was not chosen at construction; chosen: {self.rigs}")
+        if rig == "state":
+            return self.task.state(self)
+        if rig == "rgbd":
+            return cameras.capture(self.client, self.rgbd_cameras, depth=True)
+        nerf = functools.partial(cameras.capture, self.client, self.nerf_cameras)
+        return nerf() if self.nerf_show_robot else self._without_robot(nerf)
 
     def _without_robot(self, render: Callable[[], tuple]) -> tuple:
         self.client.resetBasePositionAndOrientation(self.robot.id, HIDDEN_POSITION, (0, 0, 0, 1))
