@@ -1,0 +1,175 @@
+"""`SuccessRateCallback`: closed-loop success on validation seeds during training.
+
+Configured in the YAML under `trainer.callbacks`; every `every_n_steps` optimiser steps and at the end
+of fit it runs `episodes` validation episodes (`splits.split_seed("validation", i)`) and logs
+`eval/success_rate`, its 95% Wilson interval (`eval/success_rate_low`, `eval/success_rate_high`) and
+`eval/episodes`, plus an image strip of the first rollouts (top-down view before and after the action,
+framed green on success and red on failure). `ModelCheckpoint(monitor="eval/success_rate")` with the
+same `every_n_train_steps` keeps the checkpoints with the best validation success (the Transporter
+authors' protocol). Under DDP the seeds are shared out among the processes and the counts summed.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import lightning.pytorch as pl
+import numpy as np
+from lightning.pytorch.callbacks import Callback
+from lightning.pytorch.loggers import TensorBoardLogger
+
+from nerf_transporter.evaluation.metrics import SuccessRate, wilson_interval
+from nerf_transporter.evaluation.rollout import (
+    DEFAULT_CACHE_DIR,
+    EpisodeResult,
+    EvaluationSpec,
+    Evaluator,
+)
+from nerf_transporter.splits import split_seed
+
+log = logging.getLogger(__name__)
+
+SUCCESS_COLOUR = np.array([40, 200, 40], dtype=np.uint8)
+FAILURE_COLOUR = np.array([220, 40, 40], dtype=np.uint8)
+
+
+def rollout_strip(results: list[EpisodeResult], border: int = 4) -> np.ndarray | None:
+    """One column per recorded episode (before above after), framed by outcome; HWC uint8."""
+    columns = []
+    for result in results:
+        if result.frames is None:
+            continue
+        column = np.concatenate(list(result.frames), axis=0)
+        colour = SUCCESS_COLOUR if result.success else FAILURE_COLOUR
+        framed = np.empty(
+            (column.shape[0] + 2 * border, column.shape[1] + 2 * border, 3), dtype=np.uint8
+        )
+        framed[:] = colour
+        framed[border:-border, border:-border] = column
+        columns.append(framed)
+    return np.concatenate(columns, axis=1) if columns else None
+
+
+class SuccessRateCallback(Callback):
+    """Evaluate closed-loop success on validation seeds every `every_n_steps` and at the end of fit.
+
+    Task, setting, imagery kind and imagery config default to those of the DataModule (the
+    evaluation imagery must be built like the training imagery); `imagery: oracle` swaps in the
+    simulator's ground-truth views. `strip_episodes` rollouts are drawn into the logged image strip.
+    """
+
+    def __init__(
+        self,
+        every_n_steps: int = 1000,
+        episodes: int = 10,
+        imagery: str | None = None,
+        setting: str | None = None,
+        cache_dir: str | None = DEFAULT_CACHE_DIR,
+        strip_episodes: int = 4,
+    ) -> None:
+        if every_n_steps < 1:
+            raise ValueError(f"every_n_steps must be >= 1, got {every_n_steps}")
+        if episodes < 1:
+            raise ValueError(f"episodes must be >= 1, got {episodes}")
+        self.every_n_steps = every_n_steps
+        self.episodes = episodes
+        self.imagery = imagery
+        self.setting = setting
+        self.cache_dir = cache_dir
+        self.strip_episodes = strip_episodes
+        self.metric = SuccessRate()
+        self._evaluator: Evaluator | None = None
+        self._last_step: int | None = None
+
+    # -- evaluation ---------------------------------------------------------------------------
+
+    def _get_evaluator(self, trainer: pl.Trainer) -> Evaluator:
+        if self._evaluator is None:
+            spec = EvaluationSpec.from_datamodule(
+                trainer.datamodule,
+                setting=self.setting,
+                imagery=self.imagery,
+                cache_dir=self.cache_dir,
+            )
+            self._evaluator = Evaluator(spec)
+        return self._evaluator
+
+    def evaluate(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> dict[str, float]:
+        """Run this process's share of the validation episodes; return the pooled figures."""
+        evaluator = self._get_evaluator(trainer)
+        results = [
+            evaluator.run_episode(
+                pl_module,
+                split_seed("validation", index),
+                record_frames=index < self.strip_episodes,
+            )
+            for index in range(trainer.global_rank, self.episodes, trainer.world_size)
+        ]
+        self.metric = self.metric.to(pl_module.device)
+        self.metric.reset()
+        self.metric.update([result.success for result in results])
+        rate = float(self.metric.compute())
+        successes, episodes = self.metric.counts()
+        low, high = wilson_interval(successes, episodes)
+        figures = {
+            "eval/success_rate": rate,
+            "eval/success_rate_low": low,
+            "eval/success_rate_high": high,
+            "eval/episodes": float(episodes),
+        }
+        failures = [f"{r.seed}: {r.failure}" for r in results if r.failure is not None]
+        log.info(
+            "step %d: validation success %d/%d (%.0f%%, 95%% CI %.0f-%.0f%%)%s",
+            trainer.global_step,
+            successes,
+            episodes,
+            100 * rate,
+            100 * low,
+            100 * high,
+            "".join(f"\n  {line}" for line in failures),
+        )
+        self._log(trainer, figures, rollout_strip(results))
+        self._last_step = trainer.global_step
+        return figures
+
+    def _log(
+        self, trainer: pl.Trainer, figures: dict[str, float], strip: np.ndarray | None
+    ) -> None:
+        for logger in trainer.loggers:
+            logger.log_metrics(figures, step=trainer.global_step)
+            if (
+                strip is not None
+                and isinstance(logger, TensorBoardLogger)
+                and trainer.is_global_zero
+            ):
+                logger.experiment.add_image(
+                    "eval/rollouts", strip, trainer.global_step, dataformats="HWC"
+                )
+
+    # -- hooks --------------------------------------------------------------------------------
+
+    def on_train_batch_end(
+        self,
+        trainer: pl.Trainer,
+        pl_module: pl.LightningModule,
+        outputs: object,
+        batch: object,
+        batch_idx: int,
+    ) -> None:
+        step = trainer.global_step
+        last = 0 < trainer.max_steps <= step
+        if step == self._last_step or not (step % self.every_n_steps == 0 or last):
+            return
+        figures = self.evaluate(trainer, pl_module)
+        # into trainer.callback_metrics (ModelCheckpoint's monitor, progress bar); loggers got them
+        for name, value in figures.items():
+            pl_module.log(name, value, logger=False, prog_bar=name == "eval/success_rate")
+
+    def on_train_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        if trainer.global_step != self._last_step:
+            self.evaluate(trainer, pl_module)
+
+    def teardown(self, trainer: pl.Trainer, pl_module: pl.LightningModule, stage: str) -> None:
+        if self._evaluator is not None:
+            self._evaluator.close()
+            self._evaluator = None

@@ -1,0 +1,99 @@
+"""SuccessRateCallback: closed-loop validation episodes during fit, logged and checkpointed on."""
+
+import lightning.pytorch as pl
+import numpy as np
+import pytest
+import torch
+from lightning.pytorch.callbacks import ModelCheckpoint
+from lightning.pytorch.loggers import TensorBoardLogger
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from torch.utils.data import DataLoader
+
+from nerf_transporter.data.generate import GenerationConfig
+from nerf_transporter.evaluation.callback import SuccessRateCallback
+from nerf_transporter.evaluation.metrics import wilson_interval
+
+UPRIGHT = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+class TinyStateMethod(pl.LightningModule):
+    """A one-parameter state policy: places wherever its bias says."""
+
+    name = "tiny"
+    input_kind = "state"
+
+    def __init__(self):
+        super().__init__()
+        self.bias = torch.nn.Parameter(torch.zeros(3))
+        self.act_calls = []
+
+    def training_step(self, batch, batch_idx):
+        return (self.bias - 0.1).pow(2).sum() + 0 * batch.sum()
+
+    def configure_optimizers(self):
+        return torch.optim.SGD(self.parameters(), lr=0.1)
+
+    def act(self, observation):
+        self.act_calls.append((self.global_step, self.training, observation["state"].shape))
+        place = np.array([0.5, 0.1, 0.05]) + self.bias.detach().numpy()
+        return {"pick": (np.array([0.5, 0.0, 0.02]), UPRIGHT), "place": (place, UPRIGHT)}
+
+
+class TinyData(pl.LightningDataModule):
+    """Stands in for RavensDataModule: its generation config and a few training batches."""
+
+    def generation_config(self, split, imagery=None):
+        return GenerationConfig("block-insertion", "normal", split, imagery or "oracle")
+
+    def train_dataloader(self):
+        return DataLoader(torch.zeros(8, 1), batch_size=2)
+
+
+@pytest.fixture
+def fitted(tmp_path):
+    callback = SuccessRateCallback(
+        every_n_steps=2, episodes=2, cache_dir=str(tmp_path / "cache"), strip_episodes=1
+    )
+    checkpoint = ModelCheckpoint(
+        dirpath=tmp_path / "checkpoints",
+        monitor="eval/success_rate",
+        mode="max",
+        every_n_train_steps=2,
+        filename="step{step}-success{eval/success_rate:.2f}",
+        auto_insert_metric_name=False,
+    )
+    trainer = pl.Trainer(
+        max_steps=2,
+        logger=TensorBoardLogger(tmp_path, name="logs"),
+        callbacks=[callback, checkpoint],
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        accelerator="cpu",
+    )
+    model = TinyStateMethod()
+    trainer.fit(model, datamodule=TinyData())
+    return trainer, model, checkpoint
+
+
+def test_callback_evaluates_two_episodes_and_logs_rate_interval_and_count(fitted):
+    trainer, model, checkpoint = fitted
+    # two validation episodes at step 2, in eval mode; the end of fit does not repeat them
+    assert [(step, training) for step, training, _ in model.act_calls] == [(2, False), (2, False)]
+    metrics = trainer.callback_metrics
+    assert metrics["eval/episodes"].item() == 2
+    rate = metrics["eval/success_rate"].item()
+    assert rate in (0.0, 0.5, 1.0)
+    low, high = wilson_interval(round(2 * rate), 2)
+    assert metrics["eval/success_rate_low"].item() == pytest.approx(low)
+    assert metrics["eval/success_rate_high"].item() == pytest.approx(high)
+
+    events = EventAccumulator(trainer.logger.log_dir, size_guidance={"images": 0}).Reload()
+    logged = {name: events.Scalars(name) for name in events.Tags()["scalars"]}
+    assert [(e.step, e.value) for e in logged["eval/episodes"]] == [(2, 2.0)]
+    assert logged["eval/success_rate"][0].value == pytest.approx(rate)
+    strip = events.Images("eval/rollouts")
+    assert len(strip) == 1 and strip[0].height == 2 * 320 + 8 and strip[0].width == 160 + 8
+
+    # ModelCheckpoint monitored the validation success rate
+    assert checkpoint.best_model_score.item() == pytest.approx(rate)
+    assert checkpoint.best_model_path.endswith(f"step2-success{rate:.2f}.ckpt")

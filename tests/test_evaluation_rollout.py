@@ -1,0 +1,103 @@
+"""One closed-loop episode: failures are recorded, never raised; imagery is cached per seed."""
+
+import numpy as np
+import pytest
+import torch
+
+from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
+from nerf_transporter.sim import make_env
+
+UPRIGHT = np.array([0.0, 0.0, 0.0, 1.0])
+ACTION = {
+    "pick": (np.array([0.5, 0.0, 0.02]), UPRIGHT),
+    "place": (np.array([0.5, 0.2, 0.02]), UPRIGHT),
+}
+
+
+class FixedPolicy(torch.nn.Module):
+    """Always the same action; remembers the observations it was given."""
+
+    def __init__(self, input_kind="state", error=None):
+        super().__init__()
+        self.input_kind = input_kind
+        self.error = error
+        self.observations = []
+        self.modes = []
+
+    def act(self, observation):
+        self.observations.append(observation)
+        self.modes.append(self.training)
+        if self.error is not None:
+            raise self.error
+        return ACTION
+
+
+class CrashingStepFactory:
+    """make_env, except that the first environment's `step` raises like a dead physics server."""
+
+    def __init__(self):
+        self.built = 0
+
+    def __call__(self, task, setting, **options):
+        env = make_env(task, setting, **options)
+        self.built += 1
+        if self.built == 1:
+
+            def crash(action):
+                raise RuntimeError("Not connected to physics server.")
+
+            env.step = crash
+        return env
+
+
+def test_an_episode_whose_simulation_raises_is_a_failure_and_the_run_goes_on():
+    factory = CrashingStepFactory()
+    policy = FixedPolicy()
+    with Evaluator(EvaluationSpec(task="block-insertion", imagery="oracle"), factory) as evaluator:
+        results = evaluator.run(policy, [1, 3])
+    crashed, after = results
+    assert crashed.seed == 1 and not crashed.success
+    assert crashed.failure == "step raised RuntimeError: Not connected to physics server."
+    assert crashed.action is not None and len(crashed.action["pick"]) == 7
+    # the broken environment was replaced and the next episode ran to its judgement
+    assert factory.built == 2
+    assert after.seed == 3 and "raised" not in (after.failure or "")
+    assert set(after.timings) >= {"reset_s", "act_s", "step_s", "total_s"}
+
+
+def test_a_policy_that_raises_is_a_failure_with_its_reason():
+    policy = FixedPolicy(error=ValueError("no valid pick pixel"))
+    policy.train()
+    with Evaluator(EvaluationSpec(task="block-insertion", imagery="oracle")) as evaluator:
+        result = evaluator.run_episode(policy, 1)
+    assert not result.success
+    assert result.failure == "act raised ValueError: no valid pick pixel"
+    assert result.action is None
+    assert policy.modes == [False] and policy.training  # acted in eval mode, training mode restored
+
+
+def test_unknown_input_kind_is_refused():
+    with (
+        Evaluator(EvaluationSpec(task="block-insertion", imagery="oracle")) as evaluator,
+        pytest.raises(ValueError, match="input_kind"),
+    ):
+        evaluator.run_episode(FixedPolicy(input_kind="pointcloud"), 1)
+
+
+def test_imagery_is_cached_by_seed_and_reused(tmp_path):
+    spec = EvaluationSpec(
+        task="block-insertion", imagery="oracle", pixel_size=0.0125, cache_dir=str(tmp_path)
+    )
+    policy = FixedPolicy(input_kind="imagery")
+    with Evaluator(spec) as evaluator:
+        first = evaluator.run_episode(policy, 1)
+        second = evaluator.run_episode(policy, 1)
+    assert (first.imagery_cached, second.imagery_cached) == (False, True)
+    fresh, cached = (obs["imagery"] for obs in policy.observations)
+    assert fresh["colour"].shape == (49, 80, 40, 3) and fresh["height"].shape == (49, 80, 40)
+    for key in ("colour", "height", "views"):
+        np.testing.assert_array_equal(fresh[key], cached[key])
+    assert len(list(tmp_path.rglob("*.npz"))) == 1
+    # a different imagery config is a different cache entry
+    other = EvaluationSpec(task="block-insertion", imagery="oracle", pixel_size=0.025)
+    assert other.imagery_key() != spec.imagery_key()
