@@ -22,7 +22,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from nerf_transporter.geometry import Pose
 
@@ -232,11 +231,6 @@ def load(client, path: Path | str, pose: Pose, fixed: bool = False) -> int:
         baseOrientation=[float(v) for v in quat],
         useFixedBase=fixed,
     )
-
-
-def rpy_of_quat(quat_xyzw: Sequence[float]) -> Vec3:
-    """URDF rpy (fixed-axis x, y, z) of a quaternion, for placing parts."""
-    return tuple(Rotation.from_quat(quat_xyzw).as_euler("xyz"))
 
 
 def get_pose(client, body: int) -> Pose:
