@@ -1,4 +1,7 @@
-"""SuccessRateCallback: closed-loop validation episodes during fit, logged and checkpointed on."""
+"""Closed loop inside Lightning: SuccessRateCallback during fit, and `trainer.test` on a checkpoint."""
+
+import json
+from pathlib import Path
 
 import lightning.pytorch as pl
 import numpy as np
@@ -12,11 +15,13 @@ from torch.utils.data import DataLoader
 from nerf_transporter.data.generate import GenerationConfig
 from nerf_transporter.evaluation.callback import SuccessRateCallback
 from nerf_transporter.evaluation.metrics import wilson_interval
+from nerf_transporter.evaluation.report import main as report_main
+from nerf_transporter.evaluation.testing import ClosedLoopTest, seed_loader
 
 UPRIGHT = np.array([0.0, 0.0, 0.0, 1.0])
 
 
-class TinyStateMethod(pl.LightningModule):
+class TinyStateMethod(ClosedLoopTest, pl.LightningModule):
     """A one-parameter state policy: places wherever its bias says."""
 
     name = "tiny"
@@ -40,13 +45,18 @@ class TinyStateMethod(pl.LightningModule):
 
 
 class TinyData(pl.LightningDataModule):
-    """Stands in for RavensDataModule: its generation config and a few training batches."""
+    """Stands in for RavensDataModule: its generation config, a few batches and two test seeds."""
+
+    test_setting = "challenging"
 
     def generation_config(self, split, imagery=None):
         return GenerationConfig("block-insertion", "normal", split, imagery or "oracle")
 
     def train_dataloader(self):
         return DataLoader(torch.zeros(8, 1), batch_size=2)
+
+    def test_dataloader(self):
+        return seed_loader("test", 2)
 
 
 @pytest.fixture
@@ -97,3 +107,27 @@ def test_callback_evaluates_two_episodes_and_logs_rate_interval_and_count(fitted
     # ModelCheckpoint monitored the validation success rate
     assert checkpoint.best_model_score.item() == pytest.approx(rate)
     assert checkpoint.best_model_path.endswith(f"step2-success{rate:.2f}.ckpt")
+
+
+def test_lightning_test_writes_results_beside_the_checkpoint(fitted, tmp_path, capsys):
+    trainer, model, checkpoint = fitted
+    ckpt = checkpoint.best_model_path
+    tester = pl.Trainer(logger=False, enable_progress_bar=False, accelerator="cpu")
+    metrics = tester.test(model, datamodule=TinyData(), ckpt_path=ckpt)[0]
+    results = json.loads((Path(ckpt).parent / "results.json").read_text())
+    assert results["method"] == "tiny" and results["split"] == "test"
+    assert (results["task"], results["setting"]) == ("block-insertion", "challenging")
+    assert results["checkpoint"] == ckpt and results["global_step"] == 2
+    assert [episode["seed"] for episode in results["episode_results"]] == [1, 3]
+    successes = sum(episode["success"] for episode in results["episode_results"])
+    failures = [e["failure"] for e in results["episode_results"] if not e["success"]]
+    assert results["episodes"] == 2 and results["successes"] == successes
+    assert sum(results["failures"].values()) == len(failures) and all(failures)
+    assert (results["ci_low"], results["ci_high"]) == pytest.approx(wilson_interval(successes, 2))
+    assert metrics["test/episodes"] == 2
+    assert metrics["test/success_rate"] == pytest.approx(successes / 2)
+
+    capsys.readouterr()
+    assert report_main([str(tmp_path)]) == 0
+    table = capsys.readouterr().out
+    assert "| tiny |" in table and "block-insertion Challenging" in table

@@ -1,0 +1,173 @@
+"""`nerf-transporter evaluate-checkpoints <run dir> --split validation --episodes N`.
+
+Checkpoint selection as the Transporter authors did it: save checkpoints at fixed iterations, run every
+one of them closed loop on the validation seeds, and test the best. Each checkpoint's figures go to
+`<run dir>/evaluation/<checkpoint>-<split>-<setting>.json`; the command prints a table and the
+`lightning test` command for the best checkpoint. Models and DataModules are rebuilt from the
+hyper-parameters inside the checkpoints (LightningCLI stores the method's class path there), and
+checkpoints are read with `weights_only=True`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
+from nerf_transporter.evaluation.testing import (
+    checkpoint_step,
+    method_name,
+    results_record,
+    write_json,
+)
+from nerf_transporter.splits import split_seed
+
+
+def checkpoint_steps(run_dir: Path) -> list[tuple[int, Path]]:
+    """(global step, path) of every checkpoint under `run_dir`, by step; a copy of a step
+    (`last.ckpt`) is left out."""
+    by_step: dict[int, Path] = {}
+    for path in sorted(run_dir.rglob("*.ckpt"), key=lambda p: (p.name == "last.ckpt", str(p))):
+        by_step.setdefault(checkpoint_step(path), path)
+    return sorted(by_step.items())
+
+
+def load_checkpoint(path: Path, device: torch.device) -> tuple[torch.nn.Module, object]:
+    """(method, datamodule) rebuilt from a checkpoint written by a LightningCLI run."""
+    from nerf_transporter.data.datamodule import RavensDataModule
+    from nerf_transporter.methods import Method
+
+    hparams = torch.load(path, map_location="cpu", weights_only=True).get("hyper_parameters", {})
+    if "_class_path" not in hparams:
+        raise ValueError(
+            f"{path} does not name its method class (no _class_path in its hyper-parameters); "
+            "it was not written by a `lightning fit` run"
+        )
+    model = Method.load_from_checkpoint(path, map_location=device, weights_only=True)
+    datamodule = RavensDataModule.load_from_checkpoint(path, weights_only=True)
+    return model.to(device).eval(), datamodule
+
+
+def _cell(record: dict) -> str:
+    return (
+        f"{100 * record['success_rate']:.0f}% ({record['episodes']}, "
+        f"{100 * record['ci_low']:.0f}-{100 * record['ci_high']:.0f})"
+    )
+
+
+def evaluate_checkpoints(
+    run_dir: Path,
+    split: str,
+    episodes: int,
+    *,
+    imagery: str | None = None,
+    setting: str | None = None,
+    cache_dir: str | None = DEFAULT_CACHE_DIR,
+    device: torch.device | None = None,
+    progress: bool = True,
+) -> list[dict]:
+    """Evaluate every checkpoint of a run on the first `episodes` seeds of `split`."""
+    checkpoints = checkpoint_steps(run_dir)
+    if not checkpoints:
+        raise FileNotFoundError(f"no .ckpt files under {run_dir}")
+    device = device or torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    seeds = [split_seed(split, index) for index in range(episodes)]
+    records, evaluator = [], None
+    try:
+        for step, path in checkpoints:
+            model, datamodule = load_checkpoint(path, device)
+            spec = EvaluationSpec.from_datamodule(
+                datamodule, split=split, setting=setting, imagery=imagery, cache_dir=cache_dir
+            )
+            if evaluator is None or evaluator.spec != spec:
+                if evaluator is not None:
+                    evaluator.close()
+                evaluator = Evaluator(spec)
+            start = time.perf_counter()
+            results = evaluator.run(model, seeds, progress=progress)
+            record = results_record(
+                [result.to_json() for result in results],
+                method=method_name(model),
+                spec=spec,
+                split=split,
+                checkpoint=str(path),
+                global_step=step,
+                wall_s=time.perf_counter() - start,
+            )
+            write_json(run_dir / "evaluation" / f"{path.stem}-{split}-{spec.setting}.json", record)
+            records.append(record)
+    finally:
+        if evaluator is not None:
+            evaluator.close()
+    return records
+
+
+def best_record(records: list[dict]) -> dict:
+    """Most successes; among equals the latest checkpoint."""
+    return max(records, key=lambda record: (record["successes"], record["global_step"]))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="nerf-transporter evaluate-checkpoints",
+        description="Closed-loop success of every checkpoint of a run (e.g. "
+        "logs/block-insertion/mira/version_0) on validation seeds, to pick the one to test.",
+    )
+    parser.add_argument("run_dir", type=Path, help="a run's log directory (searched for *.ckpt)")
+    parser.add_argument("--split", choices=("validation", "test"), default="validation")
+    parser.add_argument("--episodes", type=int, default=10, help="episodes per checkpoint")
+    parser.add_argument("--imagery", choices=("nerf", "oracle"), help="default: as in training")
+    parser.add_argument("--setting", help="default: the training setting")
+    parser.add_argument("--cache-dir", default=DEFAULT_CACHE_DIR, help="imagery cache")
+    parser.add_argument("--device", default=None, help="torch device (default: cuda if present)")
+    parser.add_argument("--json", action="store_true", help="end with one JSON line")
+    args = parser.parse_args(argv)
+    if args.episodes < 1:
+        parser.error("--episodes must be >= 1")
+    try:
+        records = evaluate_checkpoints(
+            args.run_dir,
+            args.split,
+            args.episodes,
+            imagery=args.imagery,
+            setting=args.setting,
+            cache_dir=args.cache_dir,
+            device=torch.device(args.device) if args.device else None,
+        )
+    except (FileNotFoundError, ValueError) as error:
+        print(f"nerf-transporter evaluate-checkpoints: {error}", file=sys.stderr)
+        return 1
+    best = best_record(records)
+    print(f"| checkpoint | step | {args.split} success (n, 95% CI) |\n| --- | --- | --- |")
+    for record in records:
+        mark = " (best)" if record is best else ""
+        name = Path(record["checkpoint"]).name
+        print(f"| {name}{mark} | {record['global_step']} | {_cell(record)} |")
+    config = args.run_dir / "config.yaml"
+    config_arg = str(config) if config.exists() else "<the run's config>"
+    print(
+        f"\ntest the best one with:\n  lightning test --config {config_arg} --ckpt_path {best['checkpoint']}"
+    )
+    if args.json:
+        summary = [
+            {
+                key: record[key]
+                for key in (
+                    "checkpoint",
+                    "global_step",
+                    "episodes",
+                    "successes",
+                    "success_rate",
+                    "ci_low",
+                    "ci_high",
+                )
+            }
+            for record in records
+        ]
+        print(json.dumps({"split": args.split, "checkpoints": summary, "best": best["checkpoint"]}))
+    return 0

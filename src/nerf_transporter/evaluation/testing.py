@@ -1,0 +1,154 @@
+"""Closed-loop `trainer.test` (`lightning test --config ... --ckpt_path ...`).
+
+The DataModule's test dataloader yields episode seeds (`seed_loader`); the methods' base class mixes
+in `ClosedLoopTest`, whose `test_step` runs those episodes with an `Evaluator` and whose epoch end
+pools the outcomes (across DDP processes), logs `test/success_rate`, its 95% Wilson interval and the
+episode count, and writes `results.json` beside the checkpoint (the file `nerf-transporter report`
+reads).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from nerf_transporter.evaluation.metrics import summarize
+from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
+from nerf_transporter.splits import split_seed
+
+RESULTS_FILE = "results.json"
+
+
+class SeedDataset(Dataset):
+    """The first `episodes` seeds of a split (`splits.split_seed`)."""
+
+    def __init__(self, split: str, episodes: int) -> None:
+        if episodes < 1:
+            raise ValueError(f"episodes must be >= 1, got {episodes}")
+        split_seed(split, episodes - 1)  # validates the split name and the range
+        self.split = split
+        self.episodes = episodes
+
+    def __len__(self) -> int:
+        return self.episodes
+
+    def __getitem__(self, index: int) -> int:
+        return split_seed(self.split, index)
+
+
+def seed_loader(split: str, episodes: int) -> DataLoader:
+    """One seed per batch, in order (the test progress bar then counts episodes)."""
+    return DataLoader(SeedDataset(split, episodes), batch_size=1, shuffle=False)
+
+
+def write_json(path: str | os.PathLike, payload: dict) -> Path:
+    """Write JSON atomically (temporary file, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}-")
+    try:
+        with os.fdopen(handle, "w") as file:
+            json.dump(payload, file, indent=2)
+            file.write("\n")
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def results_record(
+    results: list[dict[str, Any]],
+    *,
+    method: str,
+    spec: EvaluationSpec,
+    split: str,
+    checkpoint: str | None,
+    global_step: int | None,
+    wall_s: float,
+) -> dict[str, Any]:
+    """The results.json payload: identification, summary figures and every episode's record."""
+    results = sorted(results, key=lambda result: result["seed"])
+    successes = sum(result["success"] for result in results)
+    return {
+        "method": method,
+        "task": spec.task,
+        "setting": spec.setting,
+        "split": split,
+        "imagery": spec.imagery,
+        "checkpoint": checkpoint,
+        "global_step": global_step,
+        **summarize(successes, len(results), [result["failure"] for result in results]),
+        "wall_s": wall_s,
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "episode_results": results,
+    }
+
+
+def checkpoint_step(path: str | os.PathLike) -> int:
+    """The global step a checkpoint was saved at."""
+    checkpoint = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+    return int(checkpoint["global_step"])
+
+
+def method_name(module: torch.nn.Module) -> str:
+    """The name of a method (`mira`, `transporter_se2`, ...: the class attribute `name`)."""
+    return str(getattr(module, "name", type(module).__name__))
+
+
+class ClosedLoopTest:
+    """Mixin for the methods' LightningModule base class: `trainer.test` runs closed-loop episodes."""
+
+    def on_test_epoch_start(self) -> None:
+        spec = EvaluationSpec.from_datamodule(self.trainer.datamodule, split="test")
+        self._closed_loop = (Evaluator(spec), [], time.perf_counter())
+
+    def test_step(self, batch: torch.Tensor, batch_idx: int) -> None:
+        evaluator, results, _ = self._closed_loop
+        for seed in torch.as_tensor(batch).flatten().tolist():
+            results.append(evaluator.run_episode(self, int(seed)).to_json())
+
+    def on_test_epoch_end(self) -> None:
+        evaluator, results, start = self._closed_loop
+        evaluator.close()
+        if self.trainer.world_size > 1:
+            results = gather_json(self, results)
+        checkpoint = self.trainer.ckpt_path
+        record = results_record(
+            results,
+            method=method_name(self),
+            spec=evaluator.spec,
+            split="test",
+            checkpoint=str(checkpoint) if checkpoint else None,
+            global_step=checkpoint_step(checkpoint) if checkpoint else self.global_step,
+            wall_s=time.perf_counter() - start,
+        )
+        for name in ("success_rate", "ci_low", "ci_high", "episodes"):
+            if record[name] is not None:
+                self.log(f"test/{name}", float(record[name]))
+        if self.trainer.is_global_zero:
+            directory = Path(checkpoint).parent if checkpoint else Path(self.trainer.log_dir or ".")
+            path = write_json(directory / RESULTS_FILE, record)
+            print(f"closed-loop test results written to {path}")
+
+
+def gather_json(module: Any, records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Concatenate every process's JSON records (sent as padded byte tensors: no pickle)."""
+    payload = torch.tensor(list(json.dumps(records).encode()), dtype=torch.uint8)
+    sizes = module.all_gather(torch.tensor(len(payload), device=module.device)).flatten()
+    padded = torch.zeros(int(sizes.max()), dtype=torch.uint8)
+    padded[: len(payload)] = payload
+    parts = module.all_gather(padded.to(module.device)).cpu()
+    return [
+        record
+        for part, size in zip(parts, sizes.tolist(), strict=True)
+        for record in json.loads(bytes(part[:size].tolist()).decode())
+    ]
