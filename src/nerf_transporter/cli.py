@@ -12,6 +12,7 @@ TOOLS: dict[str, tuple[str, str]] = {
     "generate": ("nerf_transporter.data.generate:main", "oracle demonstrations -> episodes on disk"),
     "dataset-info": ("nerf_transporter.data.info:main", "episodes, seeds, imagery quality (--verify)"),
     "report": ("nerf_transporter.evaluation.report:main", "results table (markdown or --csv)"),
+    "evaluate-checkpoints": ("nerf_transporter.evaluation.checkpoints:main", "rank checkpoints"),
 }
 
 
