@@ -299,16 +299,14 @@ def read_dataset_config(dataset_dir: str | os.PathLike) -> dict[str, Any] | None
         raise DatasetConfigMismatchError(f"{path} is corrupt ({exc})") from exc
 
 
-def ensure_dataset_config(dataset_dir: str | os.PathLike, config: Mapping[str, Any]) -> None:
-    """Create dataset.json, or check that the stored one equals `config` (refusal names the keys)."""
+def check_dataset_config(dataset_dir: str | os.PathLike, config: Mapping[str, Any]) -> bool:
+    """True if dataset.json exists and equals `config`, False if there is none; raises
+    DatasetConfigMismatchError naming every difference otherwise."""
     dataset_dir = Path(dataset_dir)
-    config = json.loads(json.dumps(config))  # normalise tuples to lists
     stored = read_dataset_config(dataset_dir)
     if stored is None:
-        dataset_dir.mkdir(parents=True, exist_ok=True)
-        _write_json(dataset_dir / DATASET_FILE, config)
-        return
-    differences = _differences(stored, config)
+        return False
+    differences = _differences(stored, json.loads(json.dumps(config)))
     if differences:
         raise DatasetConfigMismatchError(
             f"{dataset_dir} was generated with a different configuration; refusing to mix "
@@ -316,3 +314,11 @@ def ensure_dataset_config(dataset_dir: str | os.PathLike, config: Mapping[str, A
             + "\n  ".join(differences)
             + "\nUse another --data-dir, or delete the dataset to regenerate it."
         )
+    return True
+
+
+def ensure_dataset_config(dataset_dir: str | os.PathLike, config: Mapping[str, Any]) -> None:
+    """Create dataset.json, or check that the stored one equals `config` (refusal names the keys)."""
+    if not check_dataset_config(dataset_dir, config):
+        Path(dataset_dir).mkdir(parents=True, exist_ok=True)
+        _write_json(Path(dataset_dir) / DATASET_FILE, json.loads(json.dumps(config)))

@@ -1,0 +1,271 @@
+"""Generation logic on a small deterministic stand-in for the simulator (fast), plus one run on the
+real simulator."""
+
+import json
+import math
+import os
+import socket
+
+import numpy as np
+import pytest
+
+from nerf_transporter import geometry as g
+from nerf_transporter.data import episode as ep
+from nerf_transporter.data import generate as gen
+from nerf_transporter.data import info
+from nerf_transporter.splits import split_seed
+
+PIXEL = 0.0125
+MARK = 255
+
+
+def fake_action(seed: int) -> dict:
+    rng = np.random.default_rng(seed)
+    pick = (
+        np.array([rng.uniform(0.35, 0.65), rng.uniform(-0.35, -0.05), 0.04]),
+        np.array([0, 0, 0, 1.0]),
+    )
+    place = (
+        np.array([rng.uniform(0.35, 0.65), rng.uniform(0.05, 0.35), rng.uniform(0.03, 0.1)]),
+        g.euler_to_quat(*rng.uniform(-math.pi / 6, math.pi / 6, 2), rng.uniform(0, 2 * math.pi)),
+    )
+    return {"pick": pick, "place": place}
+
+
+class FakeTask:
+    def oracle(self, env):
+        return fake_action(env.seed)
+
+
+class FakeEnv:
+    """Deterministic stand-in: seeds whose index is 1 mod 4 fail; the orthographic view of (roll,
+    pitch) marks the pick position (top-down view) and the place position (every view)."""
+
+    task = FakeTask()
+
+    def reset(self, seed):
+        self.seed = seed
+        rng = np.random.default_rng(seed)
+        camera = np.eye(4)
+        camera[:3, :3] = np.diag([1.0, -1.0, -1.0])  # looking straight down
+        camera[:3, 3] = [0.5, 0.0, 1.0]
+        obs = {
+            "state": rng.normal(size=14).astype(np.float32),
+            "rgbd": {
+                "rgb": rng.integers(0, 255, (3, 12, 16, 3), dtype=np.uint8),
+                "depth": np.full((3, 12, 16), 1.0, dtype=np.float32),
+                "intrinsics": np.tile(
+                    np.array([[10.0, 0, 7.5], [0, 10.0, 5.5], [0, 0, 1]], dtype=np.float32),
+                    (3, 1, 1),
+                ),
+                "cam_to_world": np.tile(camera.astype(np.float32), (3, 1, 1)),
+            },
+            "nerf": {
+                "rgb": rng.integers(0, 255, (2, 6, 8, 3), dtype=np.uint8),
+                "intrinsics": np.zeros((2, 3, 3), dtype=np.float32),
+                "cam_to_world": np.zeros((2, 4, 4), dtype=np.float32),
+            },
+        }
+        return obs, {}
+
+    def render_orthographic(self, roll, pitch, pixel_size=g.PIXEL_SIZE):
+        shape = g.image_shape(pixel_size)
+        colour = np.zeros((*shape, 3), dtype=np.uint8)
+        height = np.zeros(shape, dtype=np.float32)
+        action = fake_action(self.seed)
+        rotation = g.tilt_matrix(roll, pitch)
+        marks = [(action["place"][0], 1)]
+        if roll == 0 and pitch == 0:
+            marks.append((action["pick"][0], 0))
+        for position, channel in marks:
+            pixel = np.round(
+                g.world_to_pixel(g.world_to_view(position, rotation), pixel_size)
+            ).astype(int)
+            colour[pixel[0] - 1 : pixel[0] + 2, pixel[1] - 1 : pixel[1] + 2, channel] = MARK
+            height[pixel[0], pixel[1]] = 0.05
+        return colour, height
+
+    def step(self, action):
+        index = self.seed // 2
+        return (
+            None,
+            0.0,
+            True,
+            False,
+            {"success": index % 4 != 1, "failure": None, "position_error": 0.03},
+        )
+
+
+@pytest.fixture
+def fake_world(monkeypatch):
+    monkeypatch.setattr(gen, "_env", lambda config: FakeEnv())
+
+
+def oracle_config(**changes) -> gen.GenerationConfig:
+    return gen.GenerationConfig(
+        **{
+            "task": "block-insertion",
+            "imagery": "oracle",
+            "pixel_size": PIXEL,
+            "nerf_views": 2,
+            **changes,
+        }
+    )
+
+
+def successful_indices(count: int) -> list[int]:
+    return [k for k in range(2 * count) if k % 4 != 1][:count]
+
+
+def test_generate_keeps_successes_and_reruns_add_nothing(fake_world, tmp_path):
+    config = oracle_config()
+    dataset = gen.generate_dataset(config, 3, tmp_path, progress=False)
+    refs = ep.list_episodes(dataset)
+    assert [r.index for r in refs] == successful_indices(3)
+    assert [r.seed for r in refs] == [split_seed("train", k) for k in successful_indices(3)]
+    assert set(ep.failed_seeds(dataset)) == {split_seed("train", 1)}
+    assert "position 3.0 cm" in ep.failed_seeds(dataset)[2]
+    stamps = {r.path.name: r.path.stat().st_mtime_ns for r in refs}
+    gen.generate_dataset(config, 3, tmp_path, progress=False)
+    assert {r.path.name: r.path.stat().st_mtime_ns for r in ep.list_episodes(dataset)} == stamps
+    gen.generate_dataset(config, 5, tmp_path, progress=False)  # larger --episodes continues
+    assert [r.index for r in ep.list_episodes(dataset)] == successful_indices(5)
+    episode = ep.load_episode(refs[0].path)
+    assert episode.arrays["imagery"]["colour"].shape == (49, *g.image_shape(PIXEL), 3)
+    assert episode.arrays["imagery"]["height"].dtype == np.float16
+    assert episode.arrays["nerf_views"]["rgb"].shape == (2, 6, 8, 3)
+    assert json.loads((dataset / "dataset.json").read_text())["pixel_size"] == PIXEL
+
+
+def test_killed_generation_resumes_without_duplicates(fake_world, tmp_path, monkeypatch):
+    config = oracle_config()
+    real_write = ep.write_episode
+    calls = {"n": 0}
+
+    def dying_write(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2:  # dies in the middle of the second episode's files
+            real_savez = np.savez_compressed
+            monkeypatch.setattr(
+                np, "savez_compressed", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt())
+            )
+            try:
+                return real_write(*args, **kwargs)
+            finally:
+                monkeypatch.setattr(np, "savez_compressed", real_savez)
+        return real_write(*args, **kwargs)
+
+    monkeypatch.setattr(ep, "write_episode", dying_write)
+    with pytest.raises(KeyboardInterrupt):
+        gen.generate_dataset(config, 4, tmp_path, progress=False)
+    dataset = tmp_path / config.dataset_name()
+    assert len(ep.list_episodes(dataset)) == 1
+    # a hard kill (SIGKILL) leaves its temporary directory behind
+    dead = dataset / f".tmp-{ep.episode_dirname(2, 4)}-{socket.gethostname()}-{2**22 + 4321}"
+    dead.mkdir()
+    (dead / "imagery.npz").write_bytes(b"half")
+    monkeypatch.setattr(ep, "write_episode", real_write)
+    gen.generate_dataset(config, 4, tmp_path, progress=False)
+    refs = ep.list_episodes(dataset)
+    assert [r.index for r in refs] == successful_indices(4)
+    assert len({r.seed for r in refs}) == 4 and not ep.stale_temp_dirs(dataset)
+    for ref in refs:
+        ep.verify_episode(ref.path)
+
+
+def test_shards_together_make_the_dataset(fake_world, tmp_path):
+    config = oracle_config()
+    for shard in range(3):
+        gen.generate_dataset(config, 5, tmp_path, shard=(shard, 3), progress=False)
+    refs = ep.list_episodes(tmp_path / config.dataset_name())
+    assert len(refs) == 5 and len({r.seed for r in refs}) == 5
+    assert gen.shard_target(5, (0, 3)) == 2 and gen.shard_target(5, (2, 3)) == 1
+    with pytest.raises(ValueError, match="i/n"):
+        gen.parse_shard("3")
+
+
+def test_broken_oracle_stops_with_a_reason(fake_world, tmp_path):
+    with pytest.raises(
+        RuntimeError, match=r"3 oracle rollouts failed in a row \(last: seed .*position 3.0 cm"
+    ):
+        gen.generate_dataset(
+            oracle_config(), 2, tmp_path, shard=(1, 4), progress=False, max_failures_in_a_row=3
+        )
+
+
+def test_config_mismatch_refused_with_difference(fake_world, tmp_path, capsys):
+    gen.generate_dataset(oracle_config(), 1, tmp_path, progress=False)
+    config = oracle_config(nerf_views=5)
+    with pytest.raises(
+        ep.DatasetConfigMismatchError, match=r"cameras.nerf.views: stored 2, requested 5"
+    ):
+        gen.generate_dataset(config, 1, tmp_path, progress=False)
+    code = gen.main(
+        [
+            "--task",
+            "block-insertion",
+            "--imagery",
+            "oracle",
+            "--episodes",
+            "1",
+            "--pixel-size",
+            str(PIXEL),
+            "--nerf-views",
+            "5",
+            "--data-dir",
+            str(tmp_path),
+            "--no-progress",
+        ]
+    )
+    assert code == 2 and "cameras.nerf.views: stored 2, requested 5" in capsys.readouterr().err
+
+
+def test_dataset_info_and_verify(fake_world, tmp_path, capsys):
+    dataset = gen.generate_dataset(oracle_config(), 2, tmp_path, progress=False)
+    assert info.main([str(dataset), "--verify", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert (
+        summary["episodes"] == 2 and summary["verified"] is True and summary["imagery"] == "oracle"
+    )
+    assert summary["seeds"] == [0, 4]
+    victim = ep.list_episodes(dataset)[1].path / "rgbd.npz"
+    victim.write_bytes(victim.read_bytes()[:100])
+    assert info.main([str(dataset), "--verify", "--json"]) == 1
+    output = capsys.readouterr().out
+    summary = json.loads(output.strip().splitlines()[-1])
+    assert summary["verified"] is False and "000002-4: rgbd.npz" in output
+
+
+def test_command_reproduces_config():
+    config = oracle_config(nerf_views=0)
+    command = config.command(7, "data")
+    assert command == (
+        "nerf-transporter generate --task block-insertion --setting normal --split train --episodes 7 "
+        "--imagery oracle --data-dir data --pixel-size 0.0125 --nerf-views 0"
+    )
+    args = gen.build_parser().parse_args(command.split()[2:])
+    assert (args.pixel_size, args.nerf_views, args.imagery) == (PIXEL, 0, "oracle")
+
+
+def test_real_simulator_episode(tmp_path):
+    """One real oracle episode with ground-truth imagery: stored labels match the stored views."""
+    pytest.importorskip("pybullet")
+    from nerf_transporter.data.labels import mira_labels
+
+    config = oracle_config(nerf_views=0)
+    dataset = gen.generate_dataset(config, 1, tmp_path, progress=False)
+    (ref,) = ep.list_episodes(dataset)
+    ep.verify_episode(ref.path)
+    episode = ep.load_episode(ref.path)
+    action = gen.action_from_meta(episode.meta)
+    labels = mira_labels(action, config.grid, PIXEL)
+    imagery = episode.arrays["imagery"]
+    assert int(imagery["place_view"]) == labels.place_view
+    # the pick pixel lies on the object: higher than the table in the top-down view
+    top = g.top_down_view_index(config.grid)
+    assert float(imagery["height"][top][labels.pick_pixel]) > 0.01
+    assert episode.meta["success"] is True and set(episode.meta["timings_s"]) >= {
+        "capture",
+        "rollout",
+    }
+    assert os.path.isdir(dataset / "failed") or ref.index == 0
