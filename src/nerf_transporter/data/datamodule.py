@@ -1,0 +1,355 @@
+"""RavensDataModule: demonstration episodes -> training batches shaped per method (docs/interfaces.md).
+
+The model's `input_kind` picks the batch layout:
+
+- `imagery` (mira): the top-down pick view, the positive place view followed by K negative views
+  (other grid views of the same scene), pixels and the rotation bin;
+- `heightmap` (transporter_se2/se3, form2fit): the fused RGB-D heightmap, pixels, rotation bin and
+  the place z, roll and pitch;
+- `state` (gt_state_mlp): the state vector and the oracle pick and place poses.
+
+Every random choice of a sample (SE(2) augmentation, negative views) comes from a seed the sampler
+draws from (seed, epoch, position), so batches do not depend on the number of worker processes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import lightning.pytorch as pl
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset, Sampler
+
+from nerf_transporter import geometry as g
+from nerf_transporter.data import episode as ep
+from nerf_transporter.data.augment import augment_view_action, identity_transform, sample_transform
+from nerf_transporter.data.generate import GenerationConfig, action_from_meta, generate_dataset
+from nerf_transporter.data.heightmap import heightmap_from_rgbd
+from nerf_transporter.data.labels import (
+    N_ROTATIONS,
+    ViewAction,
+    continuous_pixel,
+    labels_from_view_action,
+    to_view_frames,
+)
+from nerf_transporter.data.preprocess import network_input
+
+INPUT_KINDS = ("imagery", "heightmap", "state")
+FILES_PER_KIND = {"imagery": ["imagery"], "heightmap": ["rgbd"], "state": []}
+
+
+@dataclass
+class Demo:
+    """What a sample needs from one episode, held in memory."""
+
+    seed: int
+    view_action: ViewAction  # pick in the top-down view, place in its place view
+    pick_view: int = 0  # index of the top-down view among the imagery views
+    colour: np.ndarray | None = None  # [V, H, W, 3] (imagery) or [H, W, 3] (heightmap)
+    height: np.ndarray | None = None
+    state: np.ndarray | None = None
+    pick: np.ndarray | None = None  # [7] xyz + quat_xyzw
+    place: np.ndarray | None = None
+
+
+def load_demo(path: Path, input_kind: str, grid: np.ndarray, pixel_size: float) -> Demo:
+    """Load one episode for `input_kind`; labels are recomputed from the stored oracle action."""
+    episode = ep.load_episode(path, FILES_PER_KIND[input_kind])
+    action = action_from_meta(episode.meta)
+    seed = int(episode.meta["seed"])
+    if input_kind == "imagery":
+        imagery = episode.arrays["imagery"]
+        view_action = to_view_frames(action, grid)
+        if int(imagery["place_view"]) != view_action.place_view:
+            raise ep.CorruptEpisodeError(
+                f"episode {path.name}: imagery.npz place view {int(imagery['place_view'])} differs "
+                f"from the view of its action ({view_action.place_view})"
+            )
+        return Demo(
+            seed,
+            view_action,
+            pick_view=g.top_down_view_index(grid),
+            colour=imagery["colour"],
+            height=imagery["height"],
+        )
+    view_action = to_view_frames(action, np.zeros((1, 2)))
+    if input_kind == "heightmap":
+        colour, height = heightmap_from_rgbd(episode.arrays["rgbd"], pixel_size)
+        return Demo(seed, view_action, colour=colour, height=height)
+    return Demo(
+        seed,
+        view_action,
+        state=np.asarray(episode.meta["state"], dtype=np.float32),
+        pick=np.concatenate(action["pick"]).astype(np.float32),
+        place=np.concatenate(action["place"]).astype(np.float32),
+    )
+
+
+class SeededSampler(Sampler):
+    """Yields (demo index, sample seed) pairs: `length` per epoch, demos in shuffled passes."""
+
+    def __init__(self, n_demos: int, length: int, seed: int, shuffle: bool = True) -> None:
+        self.n_demos, self.length, self.seed, self.shuffle = n_demos, length, seed, shuffle
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return self.length
+
+    def __iter__(self) -> Iterator[tuple[int, int]]:
+        rng = np.random.default_rng([self.seed, self.epoch if self.shuffle else 0])
+        passes = math.ceil(self.length / self.n_demos)
+        order = [
+            rng.permutation(self.n_demos) if self.shuffle else np.arange(self.n_demos)
+            for _ in range(passes)
+        ]
+        demos = np.concatenate(order)[: self.length]
+        seeds = rng.integers(0, 2**63 - 1, size=self.length)
+        return iter(zip(demos.tolist(), seeds.tolist(), strict=True))
+
+
+class DemoDataset(Dataset):
+    """Samples of one input kind; an item is (demo index, sample seed) from `SeededSampler`."""
+
+    def __init__(
+        self,
+        demos: list[Demo],
+        input_kind: str,
+        *,
+        pixel_size: float = g.PIXEL_SIZE,
+        n_negative_views: int = 0,
+        augment: bool = False,
+        n_rotations: int = N_ROTATIONS,
+    ) -> None:
+        if input_kind not in INPUT_KINDS:
+            raise ValueError(f"unknown input_kind {input_kind!r}; valid: {', '.join(INPUT_KINDS)}")
+        self.demos, self.input_kind = demos, input_kind
+        self.pixel_size, self.n_negative_views = pixel_size, n_negative_views
+        self.augment, self.n_rotations = augment, n_rotations
+        self.shape = g.image_shape(pixel_size)
+
+    def __len__(self) -> int:
+        return len(self.demos)
+
+    def __getitem__(self, item: tuple[int, int] | int) -> dict[str, torch.Tensor]:
+        index, sample_seed = item if isinstance(item, tuple) else (item, item)
+        demo = self.demos[index]
+        rng = np.random.default_rng(sample_seed)
+        if self.input_kind == "state":
+            return {
+                "state": torch.from_numpy(demo.state),
+                "pick": torch.from_numpy(demo.pick),
+                "place": torch.from_numpy(demo.place),
+            }
+        view_action = demo.view_action
+        transform = identity_transform(self.shape)
+        if self.augment:
+            pixels = [
+                continuous_pixel(pose[0], self.pixel_size)
+                for pose in (view_action.pick, view_action.place)
+            ]
+            transform = sample_transform(rng, self.shape, pixels)
+            view_action = augment_view_action(view_action, transform, self.pixel_size)
+        labels = labels_from_view_action(view_action, self.pixel_size, self.n_rotations)
+        sample = {
+            "pick_pixel": torch.tensor(labels.pick_pixel, dtype=torch.long),
+            "place_pixel": torch.tensor(labels.place_pixel, dtype=torch.long),
+            "rotation_bin": torch.tensor(labels.rotation_bin, dtype=torch.long),
+        }
+        if self.input_kind == "heightmap":
+            sample["image"] = network_input(
+                transform.apply_image(demo.colour), transform.apply_image(demo.height)
+            )
+            sample["place_z"] = torch.tensor(labels.place_z, dtype=torch.float32)
+            sample["place_roll"] = torch.tensor(labels.place_roll, dtype=torch.float32)
+            sample["place_pitch"] = torch.tensor(labels.place_pitch, dtype=torch.float32)
+            return sample
+        others = np.setdiff1d(np.arange(len(demo.colour)), [labels.place_view])
+        negatives = rng.choice(others, size=self.n_negative_views, replace=False)
+        views = np.concatenate([[demo.pick_view, labels.place_view], negatives]).astype(int)
+        colour = transform.apply_images(demo.colour[views])
+        height = transform.apply_images(demo.height[views])
+        images = network_input(colour, height)
+        sample["pick_image"] = images[0]
+        sample["place_images"] = images[1:]
+        return sample
+
+
+class RavensDataModule(pl.LightningDataModule):
+    """Demonstrations of one task for training (and, optionally, validation losses).
+
+    `prepare_data()` generates missing episodes (the first `n_demos` successful train seeds, and
+    `n_val_demos` validation seeds); with `generate_missing=False` a missing dataset is an error
+    that prints the `nerf-transporter generate` command to run. `input_kind` is read from the model
+    being trained (`trainer.lightning_module.input_kind`), or from the argument without a trainer.
+    Closed-loop success rates are measured on test seeds by the evaluation code, not here.
+
+    Methods that do not use imagery (heightmap, state) read any existing dataset of the task with
+    the configured imagery, else one generated with `imagery="oracle"`: their inputs (RGB-D, state)
+    and the oracle actions are the same for a seed whatever the imagery.
+    """
+
+    def __init__(
+        self,
+        task: str,
+        setting: str = "normal",
+        n_demos: int = 10,
+        data_dir: str = "data",
+        batch_size: int = 1,
+        num_workers: int = 0,
+        imagery: str = "nerf",
+        pixel_size: float = g.PIXEL_SIZE,
+        n_negative_views: int = 4,
+        augment: bool = True,
+        generate_missing: bool = True,
+        seed: int = 0,
+        input_kind: str | None = None,
+        n_val_demos: int = 0,
+        samples_per_epoch: int | None = None,
+        n_rotations: int = N_ROTATIONS,
+        nerf_views: int = 30,
+        nerf_image_size: tuple[int, int] = (480, 640),
+        imagery_config: dict[str, Any] | None = None,
+        generate_workers: int = 1,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        if n_demos < 1:
+            raise ValueError(f"n_demos must be >= 1, got {n_demos}")
+        n_views = len(g.view_grid(setting))
+        if not 0 <= n_negative_views < n_views:
+            raise ValueError(f"n_negative_views must be in [0, {n_views - 1}] for {n_views} views")
+        GenerationConfig(
+            task, setting, "train", imagery, pixel_size, nerf_views, tuple(nerf_image_size)
+        )  # validates
+        self.task, self.setting, self.n_demos = task, setting, n_demos
+        self.data_dir, self.batch_size, self.num_workers = Path(data_dir), batch_size, num_workers
+        self.imagery, self.pixel_size = imagery, pixel_size
+        self.n_negative_views, self.augment = n_negative_views, augment
+        self.generate_missing, self.seed, self.input_kind = generate_missing, seed, input_kind
+        self.n_val_demos, self.samples_per_epoch, self.n_rotations = (
+            n_val_demos,
+            samples_per_epoch,
+            n_rotations,
+        )
+        self.nerf_views, self.nerf_image_size = nerf_views, tuple(nerf_image_size)
+        self.imagery_config, self.generate_workers = dict(imagery_config or {}), generate_workers
+        self.train_dataset: DemoDataset | None = None
+        self.val_dataset: DemoDataset | None = None
+
+    # -- configuration -------------------------------------------------------------------------
+
+    def resolve_input_kind(self) -> str:
+        trainer = getattr(self, "trainer", None)
+        module = getattr(trainer, "lightning_module", None) if trainer is not None else None
+        kind = getattr(module, "input_kind", None) or self.input_kind
+        if kind not in INPUT_KINDS:
+            raise ValueError(
+                f"input_kind {kind!r}: train with a method that sets `input_kind`, or pass "
+                f"input_kind= one of {', '.join(INPUT_KINDS)}"
+            )
+        return kind
+
+    def generation_config(self, split: str, imagery: str | None = None) -> GenerationConfig:
+        return GenerationConfig(
+            task=self.task,
+            setting=self.setting,
+            split=split,
+            imagery=imagery or self.imagery,
+            pixel_size=self.pixel_size,
+            nerf_views=self.nerf_views,
+            nerf_image_size=self.nerf_image_size,
+            imagery_options=self.imagery_config,
+        )
+
+    def _wanted(self) -> list[tuple[str, int]]:
+        return [("train", self.n_demos)] + (
+            [("validation", self.n_val_demos)] if self.n_val_demos > 0 else []
+        )
+
+    def _config_for(self, split: str, count: int, input_kind: str) -> GenerationConfig:
+        """The dataset a split is read from (non-imagery methods fall back to oracle imagery)."""
+        config = self.generation_config(split)
+        if input_kind == "imagery" or config.imagery == "oracle":
+            return config
+        if len(ep.list_episodes(self.data_dir / config.dataset_name())) >= count:
+            return config
+        return self.generation_config(split, imagery="oracle")
+
+    # -- LightningDataModule -------------------------------------------------------------------
+
+    def prepare_data(self) -> None:
+        if not self.generate_missing:
+            return
+        input_kind = self.resolve_input_kind()
+        for split, count in self._wanted():
+            generate_dataset(
+                self._config_for(split, count, input_kind),
+                count,
+                self.data_dir,
+                workers=self.generate_workers,
+            )
+
+    def load_split(self, split: str, count: int, input_kind: str) -> list[Demo]:
+        """The first `count` episodes of a split, or an error saying how to generate them."""
+        config = self._config_for(split, count, input_kind)
+        dataset_dir = self.data_dir / config.dataset_name()
+        ep.check_dataset_config(dataset_dir, config.description())
+        refs = ep.list_episodes(dataset_dir)[:count]
+        if len(refs) < count:
+            reason = (
+                "generate_missing is off"
+                if not self.generate_missing
+                else "prepare_data() did not run"
+            )
+            raise FileNotFoundError(
+                f"{dataset_dir} holds {len(refs)} of the {count} {split} episodes needed and {reason}. "
+                f"Generate them with:\n  {config.command(count, self.data_dir)}"
+            )
+        return [load_demo(ref.path, input_kind, config.grid, self.pixel_size) for ref in refs]
+
+    def setup(self, stage: str | None = None) -> None:
+        input_kind = self.resolve_input_kind()
+        options = {
+            "pixel_size": self.pixel_size,
+            "n_negative_views": self.n_negative_views,
+            "n_rotations": self.n_rotations,
+        }
+        if stage in (None, "fit") and self.train_dataset is None:
+            demos = self.load_split("train", self.n_demos, input_kind)
+            self.train_dataset = DemoDataset(demos, input_kind, augment=self.augment, **options)
+        if stage in (None, "fit", "validate") and self.n_val_demos > 0 and self.val_dataset is None:
+            demos = self.load_split("validation", self.n_val_demos, input_kind)
+            self.val_dataset = DemoDataset(demos, input_kind, augment=False, **options)
+
+    def _loader(self, dataset: DemoDataset, sampler: SeededSampler) -> DataLoader:
+        return DataLoader(
+            dataset,
+            batch_size=self.batch_size,
+            sampler=sampler,
+            num_workers=self.num_workers,
+            persistent_workers=self.num_workers > 0,
+        )
+
+    def train_dataloader(self) -> DataLoader:
+        if self.train_dataset is None:
+            self.setup("fit")
+        length = self.samples_per_epoch or len(self.train_dataset)
+        return self._loader(
+            self.train_dataset, SeededSampler(len(self.train_dataset), length, self.seed)
+        )
+
+    def val_dataloader(self) -> DataLoader | list:
+        if self.n_val_demos == 0:
+            return []
+        if self.val_dataset is None:
+            self.setup("validate")
+        n = len(self.val_dataset)
+        return self._loader(self.val_dataset, SeededSampler(n, n, self.seed, shuffle=False))

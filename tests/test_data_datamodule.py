@@ -1,0 +1,134 @@
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+from test_data_generate import MARK, PIXEL, FakeEnv
+
+from nerf_transporter import geometry as g
+from nerf_transporter.data import generate as gen
+from nerf_transporter.data.datamodule import RavensDataModule
+from nerf_transporter.data.preprocess import COLOUR_MEAN, COLOUR_STD
+
+H, W = g.image_shape(PIXEL)
+MARK_VALUE = (MARK / 255.0 - COLOUR_MEAN) / COLOUR_STD
+
+
+@pytest.fixture
+def fake_world(monkeypatch):
+    monkeypatch.setattr(gen, "_env", lambda config: FakeEnv())
+
+
+def make(tmp_path, **changes) -> RavensDataModule:
+    options = {
+        "task": "block-insertion",
+        "n_demos": 3,
+        "data_dir": str(tmp_path),
+        "batch_size": 2,
+        "imagery": "oracle",
+        "pixel_size": PIXEL,
+        "n_negative_views": 3,
+        "nerf_views": 2,
+        "input_kind": "imagery",
+        "samples_per_epoch": 6,
+        **changes,
+    }
+    return RavensDataModule(**options)
+
+
+def batches(module: RavensDataModule, epoch: int = 0) -> list[dict]:
+    loader = module.train_dataloader()
+    loader.sampler.set_epoch(epoch)
+    return list(loader)
+
+
+def test_imagery_batches_follow_the_interface_and_labels_follow_content(fake_world, tmp_path):
+    module = make(tmp_path)
+    module.prepare_data()
+    module.setup("fit")
+    for batch in batches(module):
+        assert (
+            batch["pick_image"].shape == (2, 6, H, W) and batch["pick_image"].dtype == torch.float32
+        )
+        assert batch["place_images"].shape == (2, 4, 6, H, W)
+        assert batch["pick_pixel"].shape == (2, 2) and batch["pick_pixel"].dtype == torch.long
+        assert batch["place_pixel"].shape == (2, 2) and batch["rotation_bin"].shape == (2,)
+        assert ((batch["rotation_bin"] >= 0) & (batch["rotation_bin"] < 36)).all()
+        for b in range(2):
+            (r, c), (pr, pc) = batch["pick_pixel"][b].tolist(), batch["place_pixel"][b].tolist()
+            # augmented images carry the pick mark (red) and the place mark (green) at the labels
+            assert torch.isclose(batch["pick_image"][b, 0, r, c], torch.tensor(MARK_VALUE))
+            assert torch.isclose(batch["place_images"][b, 0, 1, pr, pc], torch.tensor(MARK_VALUE))
+
+
+def test_heightmap_and_state_batches(fake_world, tmp_path):
+    module = make(tmp_path, input_kind="heightmap")
+    module.prepare_data()
+    module.setup("fit")
+    batch = batches(module)[0]
+    assert batch["image"].shape == (2, 6, H, W)
+    for key in ("place_z", "place_roll", "place_pitch"):
+        assert batch[key].shape == (2,) and batch[key].dtype == torch.float32
+    assert (batch["place_roll"].abs() <= np.pi / 6 + 1e-6).all() and (batch["place_z"] > 0).all()
+    module = make(tmp_path, input_kind="state")
+    module.setup("fit")
+    batch = batches(module)[0]
+    assert (
+        batch["state"].shape == (2, 14)
+        and batch["pick"].shape == (2, 7)
+        and batch["place"].shape == (2, 7)
+    )
+
+
+def test_batches_are_deterministic_and_independent_of_workers(fake_world, tmp_path):
+    first = make(tmp_path)
+    first.prepare_data()
+    first.setup("fit")
+    parallel = make(tmp_path, num_workers=2)
+    parallel.setup("fit")
+    a, b = batches(first), batches(parallel)
+    for x, y in zip(a, b, strict=True):
+        for key in x:
+            assert torch.equal(x[key], y[key])
+    other_epoch = batches(first, epoch=1)
+    assert not torch.equal(a[0]["pick_pixel"], other_epoch[0]["pick_pixel"])
+    no_augment = make(tmp_path, augment=False)
+    no_augment.setup("fit")
+    pixels = torch.cat([batch["pick_pixel"] for batch in batches(no_augment)])
+    assert len({tuple(p) for p in pixels.tolist()}) == 3  # one label per demo
+
+
+def test_missing_data_without_generation_prints_the_command(fake_world, tmp_path):
+    module = make(tmp_path, generate_missing=False)
+    module.prepare_data()  # does nothing
+    with pytest.raises(FileNotFoundError) as error:
+        module.setup("fit")
+    command = (
+        "nerf-transporter generate --task block-insertion --setting normal --split train --episodes 3 "
+        f"--imagery oracle --data-dir {tmp_path} --pixel-size 0.0125 --nerf-views 2"
+    )
+    assert command in str(error.value)
+    assert gen.main(command.split()[2:] + ["--no-progress"]) == 0
+    module.setup("fit")
+    assert len(module.train_dataset) == 3
+
+
+def test_input_kind_from_the_trained_module_and_validation_split(fake_world, tmp_path):
+    module = make(tmp_path, input_kind=None, n_val_demos=1)
+    module.trainer = SimpleNamespace(lightning_module=SimpleNamespace(input_kind="state"))
+    module.prepare_data()
+    module.setup("fit")
+    assert module.train_dataset.input_kind == "state"
+    assert [d.seed for d in module.val_dataset.demos] == [1_000_000]
+    assert [d.seed for d in module.train_dataset.demos] == [0, 4, 6]
+    assert len(list(module.val_dataloader())) == 1
+    with pytest.raises(ValueError, match="input_kind"):
+        make(tmp_path, input_kind=None).setup("fit")
+
+
+def test_non_imagery_methods_do_not_generate_nerf_imagery(fake_world, tmp_path):
+    module = make(tmp_path, imagery="nerf", input_kind="heightmap")
+    module.prepare_data()
+    assert [p.name for p in tmp_path.iterdir()] == ["block-insertion-normal-train-oracle-px0.0125"]
+    module.setup("fit")
+    assert len(module.train_dataset) == 3
