@@ -44,7 +44,7 @@ ROD_LENGTH = 0.032
 KIT_THICKNESS = 0.016
 KIT_CAVITY_DEPTH = 0.01
 KIT_FLOOR_THICKNESS = 0.006
-KIT_CLEARANCE = 0.0025
+KIT_CLEARANCE = 0.004
 KIT_BORDER = 0.018
 
 # ---------------------------------------------------------------------------------------------
@@ -215,6 +215,7 @@ class KitShape:
 
 def _heart(samples: int = 16) -> np.ndarray:
     t = np.linspace(0.0, 2 * math.pi, samples, endpoint=False)
+    t = np.delete(t, [1, samples - 1])  # keep the notch at the top wide enough for a cavity
     x = 16 * np.sin(t) ** 3
     y = 13 * np.cos(t) - 5 * np.cos(2 * t) - 2 * np.cos(3 * t) - np.cos(4 * t)
     return _centred(np.stack([x, y], axis=1) * (4.3 / 17.0), (0.0, -0.2))
