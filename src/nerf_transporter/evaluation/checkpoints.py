@@ -40,15 +40,17 @@ def checkpoint_steps(run_dir: Path) -> list[tuple[int, Path]]:
 def load_checkpoint(path: Path, device: torch.device) -> tuple[torch.nn.Module, object]:
     """(method, datamodule) rebuilt from a checkpoint written by a LightningCLI run."""
     from nerf_transporter.data.datamodule import RavensDataModule
-    from nerf_transporter.methods import Method
+    from nerf_transporter.methods import METHODS
 
     hparams = torch.load(path, map_location="cpu", weights_only=True).get("hyper_parameters", {})
-    if "_class_path" not in hparams:
+    class_name = str(hparams.get("_class_path", "")).rsplit(".", 1)[-1]
+    classes = {cls.__name__: cls for cls in METHODS.values()}
+    if class_name not in classes:
         raise ValueError(
-            f"{path} does not name its method class (no _class_path in its hyper-parameters); "
-            "it was not written by a `lightning fit` run"
+            f"{path} does not name one of the methods ({', '.join(sorted(classes))}) in its "
+            "hyper-parameters (_class_path); it was not written by a `lightning fit` run"
         )
-    model = Method.load_from_checkpoint(path, map_location=device, weights_only=True)
+    model = classes[class_name].load_from_checkpoint(path, map_location=device, weights_only=True)
     datamodule = RavensDataModule.load_from_checkpoint(path, weights_only=True)
     return model.to(device).eval(), datamodule
 
@@ -89,7 +91,7 @@ def evaluate_checkpoints(
                     evaluator.close()
                 evaluator = Evaluator(spec)
             start = time.perf_counter()
-            results = evaluator.run(model, seeds, progress=progress)
+            results = evaluator.run(model, seeds, progress=progress, desc=path.name)
             record = results_record(
                 [result.to_json() for result in results],
                 method=method_name(model),

@@ -363,12 +363,12 @@ class Evaluator:
         )
 
     def run(
-        self, method: Policy, seeds: Iterable[int], progress: bool = False
+        self, method: Policy, seeds: Iterable[int], progress: bool = False, desc: str = "evaluation"
     ) -> list[EpisodeResult]:
         """Episodes for `seeds` in order, with an optional progress bar (successes so far)."""
         seeds = list(seeds)
         results: list[EpisodeResult] = []
-        with tqdm(seeds, desc="evaluation", unit="episode", disable=not progress) as bar:
+        with tqdm(seeds, desc=desc, unit="episode", disable=not progress) as bar:
             for seed in bar:
                 results.append(self.run_episode(method, int(seed)))
                 bar.set_postfix(successes=sum(r.success for r in results))
