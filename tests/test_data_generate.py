@@ -269,3 +269,28 @@ def test_real_simulator_episode(tmp_path):
         "rollout",
     }
     assert os.path.isdir(dataset / "failed") or ref.index == 0
+
+
+@pytest.mark.slow
+def test_real_nerf_imagery_episode(tmp_path):
+    """A NeRF-imagery episode (tiny fit): imagery, ground truth of two views and quality stored."""
+    config = gen.GenerationConfig(
+        "block-insertion",
+        imagery="nerf",
+        pixel_size=PIXEL,
+        nerf_views=6,
+        nerf_image_size=(60, 80),
+        imagery_options={"iterations": 30, "batch_rays": 512},
+    )
+    dataset = gen.generate_dataset(config, 1, tmp_path, progress=False)
+    (ref,) = ep.list_episodes(dataset)
+    episode = ep.load_episode(ref.path)
+    imagery = episode.arrays["imagery"]
+    assert imagery["colour"].shape == (49, *g.image_shape(PIXEL), 3)
+    assert set(imagery["truth_view_ids"].tolist()) <= {24, int(imagery["place_view"])}
+    assert episode.arrays["nerf_views"]["rgb"].shape == (6, 60, 80, 3)
+    quality = episode.meta["imagery"]["quality"]
+    assert quality["psnr_db"] > 5 and quality["height_mae_mm"] < 50
+    assert (
+        json.loads((dataset / "dataset.json").read_text())["imagery"]["config"]["iterations"] == 30
+    )

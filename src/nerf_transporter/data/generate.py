@@ -194,7 +194,7 @@ def imagery_quality(
     }
 
 
-def _pose_error_text(info: dict[str, Any]) -> str:
+def pose_error_text(info: dict[str, Any]) -> str:
     errors = [
         f"{label} {info[key] * scale:.1f} {unit}"
         for key, label, scale, unit in (
@@ -237,7 +237,7 @@ def generate_episode(
     _, _, _, _, info = env.step(action)
     rollout_s = time.perf_counter() - rollout_start
     if not info["success"]:
-        reason = info.get("failure") or _pose_error_text(info)
+        reason = info.get("failure") or pose_error_text(info)
         ep.record_failure(dataset_dir, seed, reason)
         return Outcome(index, seed, False, reason, time.perf_counter() - start)
 
@@ -442,7 +442,7 @@ def _pending_indices(
 # ---------------------------------------------------------------------------------------------
 
 
-def _imagery_option(text: str) -> tuple[str, Any]:
+def imagery_option(text: str) -> tuple[str, Any]:
     from nerf_transporter.imagery import ImageryConfig
 
     key, sep, value = text.partition("=")
@@ -486,7 +486,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--nerf-image-size", type=_image_size, default=(480, 640), help="ROWSxCOLS")
     parser.add_argument(
         "--imagery-option",
-        type=_imagery_option,
+        type=imagery_option,
         action="append",
         default=[],
         metavar="KEY=VALUE",
