@@ -28,7 +28,9 @@ def wilson_interval(successes: int, episodes: int, confidence: float = 0.95) -> 
         * math.sqrt(rate * (1 - rate) / episodes + z * z / (4 * episodes * episodes))
         / denominator
     )
-    return max(0.0, centre - half_width), min(1.0, centre + half_width)
+    low = 0.0 if successes == 0 else max(0.0, centre - half_width)
+    high = 1.0 if successes == episodes else min(1.0, centre + half_width)
+    return low, high
 
 
 class SuccessRate(Metric):

@@ -134,8 +134,9 @@ class ClosedLoopTest:
         for name in ("success_rate", "ci_low", "ci_high", "episodes"):
             if record[name] is not None:
                 self.log(f"test/{name}", float(record[name]))
+        # trainer.log_dir is a collective call under DDP: every process asks for it
+        directory = Path(checkpoint).parent if checkpoint else Path(self.trainer.log_dir or ".")
         if self.trainer.is_global_zero:
-            directory = Path(checkpoint).parent if checkpoint else Path(self.trainer.log_dir or ".")
             path = write_json(directory / RESULTS_FILE, record)
             print(f"closed-loop test results written to {path}")
 
