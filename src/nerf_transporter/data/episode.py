@@ -153,10 +153,10 @@ def remove_stale_temp_dirs(dataset_dir: str | os.PathLike) -> list[Path]:
     host = socket.gethostname()
     removed = []
     for path in stale_temp_dirs(dataset_dir):
-        owner = path.name.rsplit("-", 2)
-        if len(owner) != 3 or owner[1] != host or not owner[2].isdigit():
+        prefix, _, pid = path.name.rpartition("-")
+        if not prefix.endswith(f"-{host}") or not pid.isdigit():
             continue
-        if int(owner[2]) != os.getpid() and _process_alive(int(owner[2])):
+        if int(pid) != os.getpid() and _process_alive(int(pid)):
             continue
         if path.is_dir():
             shutil.rmtree(path, ignore_errors=True)
