@@ -189,7 +189,8 @@ class RavensDataModule(pl.LightningDataModule):
     `n_val_demos` validation seeds); with `generate_missing=False` a missing dataset is an error
     that prints the `nerf-transporter generate` command to run. `input_kind` is read from the model
     being trained (`trainer.lightning_module.input_kind`), or from the argument without a trainer.
-    Closed-loop success rates are measured on test seeds by the evaluation code, not here.
+    Closed-loop success rates are measured by the evaluation code: the test dataloader yields the
+    first `test_episodes` test seeds, run in `test_setting` (default: `setting`).
 
     Methods that do not use imagery (heightmap, state) read any existing dataset of the task with
     the configured imagery, else one generated with `imagery="oracle"`: their inputs (RGB-D, state)
@@ -218,6 +219,8 @@ class RavensDataModule(pl.LightningDataModule):
         nerf_image_size: tuple[int, int] = (480, 640),
         imagery_config: dict[str, Any] | None = None,
         generate_workers: int = 1,
+        test_episodes: int = 100,
+        test_setting: str | None = None,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -241,6 +244,7 @@ class RavensDataModule(pl.LightningDataModule):
         )
         self.nerf_views, self.nerf_image_size = nerf_views, tuple(nerf_image_size)
         self.imagery_config, self.generate_workers = dict(imagery_config or {}), generate_workers
+        self.test_episodes, self.test_setting = test_episodes, test_setting
         self.train_dataset: DemoDataset | None = None
         self.val_dataset: DemoDataset | None = None
 
@@ -353,3 +357,9 @@ class RavensDataModule(pl.LightningDataModule):
             self.setup("validate")
         n = len(self.val_dataset)
         return self._loader(self.val_dataset, SeededSampler(n, n, self.seed, shuffle=False))
+
+    def test_dataloader(self) -> DataLoader:
+        """Seeds of the closed-loop test episodes (`lightning test`, see evaluation/testing.py)."""
+        from nerf_transporter.evaluation.testing import seed_loader
+
+        return seed_loader("test", self.test_episodes)
