@@ -257,13 +257,9 @@ class Evaluator:
             colour = np.stack([view[0] for view in rendered])
             height = np.stack([view[1] for view in rendered])
         else:
-            from nerf_transporter.imagery import ImageryConfig, fit_scene, render_views
+            from nerf_transporter.imagery import fit_scene, render_views
 
             config = self.spec.imagery_config
-            if config is None:
-                config = ImageryConfig()
-            elif isinstance(config, dict):
-                config = ImageryConfig(**config)
             capture = obs["nerf"]
             scene = fit_scene(
                 capture["rgb"], capture["intrinsics"], capture["cam_to_world"], config
