@@ -115,7 +115,13 @@ def test_missing_data_without_generation_prints_the_command(fake_world, tmp_path
 
 def test_input_kind_from_the_trained_module_and_validation_split(fake_world, tmp_path):
     module = make(tmp_path, input_kind=None, n_val_demos=1)
-    module.trainer = SimpleNamespace(lightning_module=SimpleNamespace(input_kind="state"))
+    state_module = SimpleNamespace(input_kind="state")
+    module.trainer = SimpleNamespace(
+        lightning_module=state_module, state=SimpleNamespace(fn="test")
+    )
+    module.prepare_data()  # `lightning test` runs test seeds: nothing to generate
+    assert not list(tmp_path.iterdir())
+    module.trainer = SimpleNamespace(lightning_module=state_module, state=SimpleNamespace(fn="fit"))
     module.prepare_data()
     module.setup("fit")
     assert module.train_dataset.input_kind == "state"

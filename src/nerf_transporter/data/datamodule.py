@@ -274,9 +274,13 @@ class RavensDataModule(pl.LightningDataModule):
         )
 
     def _wanted(self) -> list[tuple[str, int]]:
-        return [("train", self.n_demos)] + (
-            [("validation", self.n_val_demos)] if self.n_val_demos > 0 else []
-        )
+        """(split, episodes) the running stage reads: fit both, validate validation, test none."""
+        trainer = getattr(self, "trainer", None)
+        stage = trainer.state.fn if trainer is not None and trainer.state.fn is not None else "fit"
+        wanted = [("train", self.n_demos)] if stage == "fit" else []
+        if stage in ("fit", "validate") and self.n_val_demos > 0:
+            wanted.append(("validation", self.n_val_demos))
+        return wanted
 
     def _config_for(self, split: str, count: int, input_kind: str) -> GenerationConfig:
         """The dataset a split is read from (non-imagery methods fall back to oracle imagery)."""
