@@ -8,8 +8,8 @@ from nerf_transporter.cli import main as cli_main
 from nerf_transporter.evaluation.report import main as report_main
 
 
-def _write(root, run, method, task, setting, successes, episodes, low, high, created):
-    path = root / run / "checkpoints" / "results.json"
+def _write(root, run, method, task, setting, successes, episodes, low, high, created, name=None):
+    path = root / run / "checkpoints" / (name or "results.json")
     path.parent.mkdir(parents=True)
     record = {
         "method": method,
@@ -77,6 +77,7 @@ def logs(tmp_path):
         0.4038,
         0.5962,
         "2024-01-01T00:00:00",
+        name="results-challenging.json",  # a Normal-trained model tested in Challenging
     )
     _write(
         root,

@@ -1,8 +1,9 @@
 """`nerf-transporter report logs/ [--csv]`: the results table of DESIGN section 10.
 
-Reads every `results.json` (written by `lightning test`) under the given directories and prints one row
-per method and one column per task/setting; a cell reads "rate% (n, CI)" with the 95% Wilson interval
-in percent, and is empty where no run exists. Where several runs exist for one cell, the newest wins.
+Reads every `results.json` / `results-<setting>.json` (written by `lightning test`) under the given
+directories and prints one row per method and one column per task/setting; a cell reads
+"rate% (n, CI)" with the 95% Wilson interval in percent, and is empty where no run exists. Where
+several runs exist for one cell, the newest wins.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import json
 import sys
 from pathlib import Path
 
-RESULTS_FILE = "results.json"
+RESULTS_GLOB = "results*.json"
 METHODS = {
     "gt_state_mlp": "GT-State MLP",
     "form2fit": "Form2Fit",
@@ -35,7 +36,7 @@ def load_results(roots: list[Path]) -> list[dict]:
     for root in roots:
         if not root.exists():
             raise FileNotFoundError(f"no such directory: {root}")
-        for path in sorted(root.rglob(RESULTS_FILE)):
+        for path in sorted(root.rglob(RESULTS_GLOB)):
             try:
                 record = json.loads(path.read_text())
             except (OSError, json.JSONDecodeError) as error:
@@ -118,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     if not records:
         roots = " ".join(str(root) for root in args.roots)
         print(
-            f"nerf-transporter report: no {RESULTS_FILE} under {roots}; run "
+            f"nerf-transporter report: no results.json under {roots}; run "
             "`lightning test --config <config> --ckpt_path <ckpt>` first",
             file=sys.stderr,
         )

@@ -3,8 +3,9 @@
 The DataModule's test dataloader yields episode seeds (`seed_loader`); the methods' base class mixes
 in `ClosedLoopTest`, whose `test_step` runs those episodes with an `Evaluator` and whose epoch end
 pools the outcomes (across DDP processes), logs `test/success_rate`, its 95% Wilson interval and the
-episode count, and writes `results.json` beside the checkpoint (the file `nerf-transporter report`
-reads).
+episode count, and writes `results.json` beside the checkpoint (`results-<setting>.json` when the
+DataModule's `test_setting` differs from its training `setting`); `nerf-transporter report` reads
+these files.
 """
 
 from __future__ import annotations
@@ -24,7 +25,10 @@ from nerf_transporter.evaluation.metrics import summarize
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
 from nerf_transporter.splits import split_seed
 
-RESULTS_FILE = "results.json"
+
+def results_file_name(setting: str, training_setting: str) -> str:
+    """`results.json`; `results-<setting>.json` when testing in another setting than trained in."""
+    return "results.json" if setting == training_setting else f"results-{setting}.json"
 
 
 class SeedDataset(Dataset):
@@ -137,7 +141,8 @@ class ClosedLoopTest:
         # trainer.log_dir is a collective call under DDP: every process asks for it
         directory = Path(checkpoint).parent if checkpoint else Path(self.trainer.log_dir or ".")
         if self.trainer.is_global_zero:
-            path = write_json(directory / RESULTS_FILE, record)
+            name = results_file_name(record["setting"], self.trainer.datamodule.setting)
+            path = write_json(directory / name, record)
             print(f"closed-loop test results written to {path}")
 
 
