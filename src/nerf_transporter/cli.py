@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+from typing import Any
 
 # sub-command -> ("module:function", one-line help). Each function takes argv and returns an exit code.
 TOOLS: dict[str, tuple[str, str]] = {
@@ -16,8 +17,19 @@ TOOLS: dict[str, tuple[str, str]] = {
 }
 
 
+# Sub-commands handed to LightningCLI (also what the `lightning` console script runs).
+LIGHTNING_COMMANDS: dict[str, str] = {
+    "fit": "train a method (LightningCLI; e.g. --config configs/block_insertion.yaml)",
+    "validate": "validation losses of a checkpoint (LightningCLI)",
+    "test": "closed-loop evaluation of a checkpoint (LightningCLI)",
+    "predict": "predictions of a checkpoint (LightningCLI)",
+}
+
+
 def _usage() -> str:
     lines = ["usage: nerf-transporter <command> [options]", "", "commands:"]
+    for name, help_text in LIGHTNING_COMMANDS.items():
+        lines.append(f"  {name:<14}{help_text}")
     for name, (_, help_text) in sorted(TOOLS.items()):
         lines.append(f"  {name:<14}{help_text}")
     lines.append("\nRun `nerf-transporter <command> --help` for the options of one command.")
@@ -30,12 +42,56 @@ def main(argv: list[str] | None = None) -> int:
         print(_usage())
         return 0
     command, rest = argv[0], argv[1:]
+    if command in LIGHTNING_COMMANDS:
+        lightning_main(argv)
+        return 0
     if command not in TOOLS:
         print(f"nerf-transporter: unknown command {command!r}\n\n{_usage()}", file=sys.stderr)
         return 2
     module_name, function_name = TOOLS[command][0].split(":")
     function = getattr(importlib.import_module(module_name), function_name)
     return int(function(rest) or 0)
+
+
+def run_name(model: Any, datamodule: Any) -> str:
+    """`<task>/<method>` (task suffixed with its setting unless Normal): the TensorBoard run name."""
+    task = str(getattr(datamodule, "task", None) or "unknown-task")
+    setting = getattr(datamodule, "setting", "normal")
+    if setting and setting != "normal":
+        task = f"{task}-{setting}"
+    return f"{task}/{getattr(model, 'name', type(model).__name__.lower())}"
+
+
+def lightning_main(args: list[str] | None = None) -> None:
+    """LightningCLI (omegaconf parser mode): `model` is any `Method`, `data` any LightningDataModule.
+
+    Without an explicit `trainer.logger`, runs log with TensorBoard to `logs/<task>/<method>/version_N`
+    and checkpoints go to `checkpoints/` inside that folder.
+    """
+    import lightning.pytorch as pl
+    from lightning.pytorch.cli import LightningCLI
+    from lightning.pytorch.loggers import TensorBoardLogger
+
+    from nerf_transporter.methods import Method
+
+    class NerfTransporterCLI(LightningCLI):
+        def instantiate_trainer(self, **kwargs: Any) -> pl.Trainer:
+            logger = self._get(self.config_init, "trainer", default={}).get("logger")
+            if logger is None or logger is True:
+                kwargs["logger"] = TensorBoardLogger(
+                    save_dir="logs", name=run_name(self.model, self.datamodule)
+                )
+            return super().instantiate_trainer(**kwargs)
+
+    NerfTransporterCLI(
+        Method,
+        pl.LightningDataModule,
+        subclass_mode_model=True,
+        subclass_mode_data=True,
+        parser_kwargs={"parser_mode": "omegaconf"},
+        save_config_kwargs={"overwrite": True},
+        args=args,
+    )
 
 
 if __name__ == "__main__":

@@ -1,0 +1,188 @@
+"""The interface every method shares: training on DataModule batches, logging, and `act`."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import lightning as L
+import numpy as np
+import torch
+from lightning.pytorch.loggers import TensorBoardLogger
+
+from nerf_transporter import geometry as g
+from nerf_transporter.data.preprocess import COLOUR_MEAN, COLOUR_STD, network_input
+from nerf_transporter.evaluation.testing import ClosedLoopTest
+from nerf_transporter.models import Attention, Transport, pixel_cross_entropy
+from nerf_transporter.models.transport import placement_cross_entropy, unravel_argmax
+
+Batch = dict[str, torch.Tensor]
+Action = dict[str, g.Pose]
+INPUT_KINDS = ("imagery", "heightmap", "state")
+
+
+class Method(ClosedLoopTest, L.LightningModule):
+    """Base class of the methods; LightningCLI's `model` is a subclass of it.
+
+    Subclasses set `name` (the log folder) and `input_kind` (what the DataModule feeds them), and
+    implement `losses(batch)` (a dict with the total under "loss"), `act(observation)` and, for
+    image-based methods, `heatmaps(batch)` (affordance maps of the first sample, logged as images).
+    """
+
+    name: ClassVar[str]
+    input_kind: ClassVar[str]
+
+    def __init__(self, lr: float = 1e-4, log_images_every_n_steps: int = 250) -> None:
+        super().__init__()
+        if lr <= 0:
+            raise ValueError(f"lr must be positive, got {lr}")
+        self.lr = lr
+        self.log_images_every_n_steps = log_images_every_n_steps
+
+    def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
+        raise NotImplementedError
+
+    def heatmaps(self, batch: Batch) -> dict[str, torch.Tensor]:
+        """name -> RGB image [3, H, W] in [0, 1]; none by default."""
+        return {}
+
+    def act(self, observation: dict[str, Any]) -> Action:
+        raise NotImplementedError
+
+    def setup(self, stage: str) -> None:
+        """Refuse a DataModule whose pixel size or rotation bins differ from the model's."""
+        datamodule = getattr(self.trainer, "datamodule", None)
+        for key in ("pixel_size", "n_rotations"):
+            ours, theirs = getattr(self, key, None), getattr(datamodule, key, None)
+            if ours is not None and theirs is not None and ours != theirs:
+                raise ValueError(
+                    f"model.init_args.{key} is {ours} but data.init_args.{key} is {theirs}; "
+                    "set both to the same value"
+                )
+
+    def training_step(self, batch: Batch, batch_idx: int) -> torch.Tensor:
+        losses = self.losses(batch)
+        self._log_losses("train", losses, batch)
+        every = self.log_images_every_n_steps
+        if every > 0 and self.global_step % every == 0:
+            self._log_heatmaps(batch)
+        return losses["loss"]
+
+    def validation_step(self, batch: Batch, batch_idx: int) -> None:
+        self._log_losses("val", self.losses(batch), batch, sync_dist=True)
+
+    def configure_optimizers(self) -> torch.optim.Optimizer:
+        return torch.optim.Adam(self.parameters(), lr=self.lr)
+
+    def _log_losses(
+        self, stage: str, losses: dict[str, torch.Tensor], batch: Batch, sync_dist: bool = False
+    ) -> None:
+        batch_size = next(iter(batch.values())).shape[0]
+        self.log_dict(
+            {f"{stage}/{key}": value.detach() for key, value in losses.items()},
+            batch_size=batch_size,
+            sync_dist=sync_dist,
+            prog_bar=False,
+        )
+        self.log(
+            f"{stage}_loss",
+            losses["loss"].detach(),
+            batch_size=batch_size,
+            prog_bar=True,
+            sync_dist=sync_dist,
+            logger=False,
+        )
+
+    @torch.no_grad()
+    def _log_heatmaps(self, batch: Batch) -> None:
+        loggers = [lg for lg in self.loggers if isinstance(lg, TensorBoardLogger)]
+        if not loggers:
+            return
+        for name, image in self.heatmaps(batch).items():
+            for logger in loggers:
+                logger.experiment.add_image(f"heatmap/{name}", image.cpu(), self.global_step)
+
+
+def overlay(image: torch.Tensor, heat: torch.Tensor) -> torch.Tensor:
+    """Network input [6, H, W] and a heatmap [H, W] -> RGB [3, H, W]: colour dimmed, heat in red."""
+    colour = (image[:3] * COLOUR_STD + COLOUR_MEAN).clamp(0, 1)
+    heat = heat - heat.min()
+    heat = heat / heat.max().clamp(min=1e-12)
+    out = 0.5 * colour
+    out[0] = out[0] + 0.5 * heat
+    return out.clamp(0, 1)
+
+
+def softmax_map(logits: torch.Tensor) -> torch.Tensor:
+    """Softmax over all elements of a logit map, same shape."""
+    return logits.flatten().softmax(0).view_as(logits)
+
+
+def check_image_shape(shape: tuple[int, ...], pixel_size: float, what: str) -> None:
+    """ValueError unless an image's (H, W) is the workspace at the model's pixel size."""
+    expected = g.image_shape(pixel_size)
+    if tuple(shape) != expected:
+        raise ValueError(
+            f"{what} is {shape[0]}x{shape[1]} pixels, but this model works at pixel_size "
+            f"{pixel_size} ({expected[0]}x{expected[1]}); render the observation at that pixel size"
+        )
+
+
+def heightmap_tensors(
+    observation: dict[str, Any], pixel_size: float, device: torch.device
+) -> tuple[torch.Tensor, np.ndarray]:
+    """{"heightmap": {"colour", "height"}} -> (network input [1, 6, H, W], height [H, W] numpy)."""
+    if "heightmap" not in observation:
+        raise ValueError(f"observation has no 'heightmap' entry (keys: {sorted(observation)})")
+    colour = np.asarray(observation["heightmap"]["colour"])
+    height = np.asarray(observation["heightmap"]["height"], dtype=np.float32)
+    check_image_shape(height.shape, pixel_size, "heightmap")
+    return network_input(colour, height)[None].to(device), height
+
+
+class AttentionTransportMethod(Method):
+    """Shared part of `mira`, `transporter_se2` and `transporter_se3`: attention + transport."""
+
+    def __init__(
+        self,
+        lr: float = 1e-4,
+        log_images_every_n_steps: int = 250,
+        pixel_size: float = g.PIXEL_SIZE,
+        n_rotations: int = 36,
+        crop_size: int = 64,
+        width: int = 64,
+        feature_channels: int = 3,
+    ) -> None:
+        super().__init__(lr=lr, log_images_every_n_steps=log_images_every_n_steps)
+        self.pixel_size = pixel_size
+        self.n_rotations = n_rotations
+        self.crop_size = crop_size
+        self.attention = Attention(6, width)
+        self.transport = Transport(6, feature_channels, n_rotations, crop_size, width)
+
+    def pick_place_losses(
+        self, pick_image: torch.Tensor, place_images: torch.Tensor, batch: Batch
+    ) -> dict[str, torch.Tensor]:
+        """Pick and place cross-entropies; the place label sits in view 0 of `place_images`."""
+        pick_loss = pixel_cross_entropy(self.attention(pick_image), batch["pick_pixel"])
+        place_logits = self.transport(pick_image, batch["pick_pixel"], place_images)
+        place_loss = placement_cross_entropy(
+            place_logits, batch["place_pixel"], batch["rotation_bin"]
+        )
+        return {"loss": pick_loss + place_loss, "pick_loss": pick_loss, "place_loss": place_loss}
+
+    def pick_place_heatmaps(
+        self, pick_image: torch.Tensor, place_image: torch.Tensor, batch: Batch
+    ) -> dict[str, torch.Tensor]:
+        """Pick heatmap and place heatmap (max over rotations) of the first sample."""
+        pick_logits = self.attention(pick_image[:1])[0]
+        place_logits = self.transport(
+            pick_image[:1], batch["pick_pixel"][:1], place_image[:1, None]
+        )
+        return {
+            "pick": overlay(pick_image[0], softmax_map(pick_logits)),
+            "place": overlay(place_image[0], softmax_map(place_logits[0, 0]).amax(0)),
+        }
+
+    def predict_pick(self, image: torch.Tensor) -> tuple[int, int]:
+        """Argmax pixel (row, col) of the attention logits of one image [1, 6, H, W]."""
+        return unravel_argmax(self.attention(image)[0])

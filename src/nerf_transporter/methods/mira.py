@@ -1,0 +1,95 @@
+"""`mira`: Transporter networks searching the NeRF mental imagery (DESIGN sections 7 and 8)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+
+from nerf_transporter import geometry as g
+from nerf_transporter.data.labels import action_from_labels
+from nerf_transporter.data.preprocess import network_input
+from nerf_transporter.methods.base import Action, AttentionTransportMethod, Batch, check_image_shape
+
+
+class Mira(AttentionTransportMethod):
+    """Pick on the top-down imagery view; place by one transport search over all views.
+
+    Training: the place label lies in view 0 of `place_images` (the positive view); the other K views
+    are negatives of the same scene, and one softmax runs over views x rotations x pixels.
+    `view_chunk` views are correlated at a time in `act` (bounds memory over a 49- or 121-view grid).
+    """
+
+    name = "mira"
+    input_kind = "imagery"
+
+    def __init__(
+        self,
+        lr: float = 1e-4,
+        log_images_every_n_steps: int = 250,
+        pixel_size: float = g.PIXEL_SIZE,
+        n_rotations: int = 36,
+        crop_size: int = 64,
+        width: int = 64,
+        feature_channels: int = 3,
+        view_chunk: int = 8,
+    ) -> None:
+        super().__init__(
+            lr,
+            log_images_every_n_steps,
+            pixel_size,
+            n_rotations,
+            crop_size,
+            width,
+            feature_channels,
+        )
+        if view_chunk < 1:
+            raise ValueError(f"view_chunk must be >= 1, got {view_chunk}")
+        self.view_chunk = view_chunk
+        self.save_hyperparameters()
+
+    def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
+        return self.pick_place_losses(batch["pick_image"], batch["place_images"], batch)
+
+    def heatmaps(self, batch: Batch) -> dict[str, torch.Tensor]:
+        return self.pick_place_heatmaps(batch["pick_image"], batch["place_images"][:, 0], batch)
+
+    @torch.no_grad()
+    def act(self, observation: dict[str, Any]) -> Action:
+        if "imagery" not in observation:
+            raise ValueError(f"observation has no 'imagery' entry (keys: {sorted(observation)})")
+        imagery = observation["imagery"]
+        height = np.asarray(imagery["height"], dtype=np.float32)
+        views = np.asarray(imagery["views"], dtype=float)
+        if height.ndim != 3 or views.shape != (height.shape[0], 2):
+            raise ValueError(
+                f"imagery needs height [V, H, W] and views [V, 2], got {height.shape} and {views.shape}"
+            )
+        check_image_shape(height.shape[1:], self.pixel_size, "imagery")
+        images = network_input(imagery["colour"], height)
+        top = g.top_down_view_index(views)
+        pick_image = images[top : top + 1].to(self.device)
+        pick = self.predict_pick(pick_image)
+        kernels = self.transport.kernels(pick_image, torch.tensor([pick], device=self.device))
+        best_value, best = -float("inf"), (0, 0, 0, 0)
+        for start in range(0, len(views), self.view_chunk):
+            chunk = images[None, start : start + self.view_chunk].to(self.device)
+            logits = self.transport.correlate(
+                self.transport.query_features(chunk), kernels, height.shape[1:]
+            )[0]
+            value = float(logits.max())
+            if value > best_value:
+                view, rotation, row, col = np.unravel_index(int(logits.argmax()), logits.shape)
+                best_value, best = value, (start + int(view), int(rotation), int(row), int(col))
+        view, rotation, row, col = best
+        return action_from_labels(
+            pick,
+            float(height[top][pick]),
+            (row, col),
+            float(height[view, row, col]),
+            rotation,
+            place_view=(float(views[view, 0]), float(views[view, 1])),
+            pixel_size=self.pixel_size,
+            n_rotations=self.n_rotations,
+        )

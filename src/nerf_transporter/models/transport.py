@@ -1,0 +1,144 @@
+"""Transport (place) model: rotated pick crops as kernels, cross-correlated with the place image(s).
+
+Rotation bin k is the angle theta_k = 2 pi k / n (`geometry.bin_to_angle`) of (place yaw - pick yaw).
+Kernel k is computed from the pick crop with its content rotated by +theta_k about the pick pixel
+(counter-clockwise about world z: x towards y, i.e. columns towards rows), so it shows the held object
+as it will look once the gripper has turned by theta_k. Rotating the pick scene by +m bins therefore
+shifts the logits by -m bins (tested).
+
+Correlation runs in the Fourier domain: a 64 x 64 kernel over a 384 x 224 image costs a few FFTs
+instead of ~20 GMAC of direct convolution.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from nerf_transporter.models.resnet import ResNet43_8s
+
+
+def bin_angles(n_rotations: int) -> torch.Tensor:
+    """Angles of the rotation bins, [n_rotations] (the torch twin of `geometry.bin_to_angle`)."""
+    return torch.arange(n_rotations, dtype=torch.float32) * (2 * math.pi / n_rotations)
+
+
+def rotated_crops(
+    images: torch.Tensor, centres: torch.Tensor, angles: torch.Tensor, size: int
+) -> torch.Tensor:
+    """Square crops around pixels with their content rotated by each angle.
+
+    images [B, C, H, W]; centres [B, 2] (row, col); angles [R] or [B, R] radians -> [B, R, C, size, size].
+    Crop pixel (size // 2, size // 2) is the centre pixel. Output offset o samples the input at
+    centre + Rot(-angle) o (in (col, row) = (x, y) coordinates), so the content turns by +angle.
+    Samples outside the image are zero.
+    """
+    batch, channels, height, width = images.shape
+    angles = angles.to(images).expand(batch, -1) if angles.dim() == 1 else angles.to(images)
+    n_rot = angles.shape[1]
+    offsets = torch.arange(size, device=images.device, dtype=images.dtype) - size // 2
+    off_row, off_col = torch.meshgrid(offsets, offsets, indexing="ij")  # [size, size]
+    cos, sin = angles.cos()[..., None, None], angles.sin()[..., None, None]  # [B, R, 1, 1]
+    centres = centres.to(images)
+    src_col = centres[:, 1, None, None, None] + cos * off_col + sin * off_row
+    src_row = centres[:, 0, None, None, None] - sin * off_col + cos * off_row
+    grid = torch.stack(
+        [src_col * (2.0 / max(width - 1, 1)) - 1.0, src_row * (2.0 / max(height - 1, 1)) - 1.0],
+        dim=-1,
+    )  # [B, R, size, size, 2]
+    crops = F.grid_sample(
+        images,
+        grid.reshape(batch, n_rot * size, size, 2),
+        mode="bilinear",
+        padding_mode="zeros",
+        align_corners=True,
+    )  # [B, C, R * size, size]
+    return crops.reshape(batch, channels, n_rot, size, size).transpose(1, 2)
+
+
+def cross_correlate(
+    query: torch.Tensor, kernels: torch.Tensor, out_shape: tuple[int, int]
+) -> torch.Tensor:
+    """Valid cross-correlation of padded query maps with kernels, summed over channels.
+
+    query [B, V, C, Hp, Wp]; kernels [B, R, C, k, k] -> [B, V, R, H, W] with (H, W) = out_shape and
+    out[y, x] = sum_{c,u,v} query[c, y + u, x + v] * kernel[c, u, v] (needs Hp >= H + k - 1).
+    """
+    padded_shape = query.shape[-2:]
+    query_f = torch.fft.rfft2(query, s=padded_shape)
+    kernel_f = torch.fft.rfft2(kernels, s=padded_shape)
+    product = torch.einsum("bvcij,brcij->bvrij", query_f, kernel_f.conj())
+    full = torch.fft.irfft2(product, s=padded_shape)
+    return full[..., : out_shape[0], : out_shape[1]]
+
+
+class Transport(nn.Module):
+    """Two ResNet43 streams: key on rotated pick crops, query on the padded place image(s)."""
+
+    def __init__(
+        self,
+        in_channels: int = 6,
+        feature_channels: int = 3,
+        n_rotations: int = 36,
+        crop_size: int = 64,
+        width: int = 64,
+    ) -> None:
+        super().__init__()
+        if crop_size % 2:
+            raise ValueError(f"crop_size must be even, got {crop_size}")
+        self.n_rotations = n_rotations
+        self.crop_size = crop_size
+        self.key = ResNet43_8s(in_channels, feature_channels, width)
+        self.query = ResNet43_8s(in_channels, feature_channels, width)
+        self.register_buffer("angles", bin_angles(n_rotations), persistent=False)
+
+    def kernels(self, pick_image: torch.Tensor, pick_pixel: torch.Tensor) -> torch.Tensor:
+        """[B, C, H, W], [B, 2] -> kernels [B, R, F, k, k]."""
+        crops = rotated_crops(pick_image, pick_pixel, self.angles, self.crop_size)
+        features = self.key(crops.flatten(0, 1))
+        return features.unflatten(0, crops.shape[:2])
+
+    def query_features(self, place_images: torch.Tensor) -> torch.Tensor:
+        """[B, V, C, H, W] -> query maps on the image padded by crop_size / 2: [B, V, F, H + k, W + k]."""
+        half = self.crop_size // 2
+        padded = F.pad(place_images.flatten(0, 1), (half, half, half, half))
+        return self.query(padded).unflatten(0, place_images.shape[:2])
+
+    def correlate(
+        self, query: torch.Tensor, kernels: torch.Tensor, image_shape: tuple[int, int]
+    ) -> torch.Tensor:
+        """Query maps [B, V, F, Hp, Wp] and kernels [B, R, F, k, k] -> logits [B, V, R, H, W]."""
+        return cross_correlate(query, kernels, image_shape)
+
+    def forward(
+        self, pick_image: torch.Tensor, pick_pixel: torch.Tensor, place_images: torch.Tensor
+    ) -> torch.Tensor:
+        """Place logits [B, V, R, H, W] for place images [B, V, C, H, W] (V = 1 for one view)."""
+        kernels = self.kernels(pick_image, pick_pixel)
+        query = self.query_features(place_images)
+        return self.correlate(query, kernels, place_images.shape[-2:])
+
+
+def placement_cross_entropy(
+    logits: torch.Tensor,
+    place_pixel: torch.Tensor,
+    rotation_bin: torch.Tensor,
+    view: torch.Tensor | int = 0,
+) -> torch.Tensor:
+    """One softmax over views x rotations x pixels per sample; the label is (view, bin, row, col).
+
+    logits [B, V, R, H, W]; place_pixel [B, 2]; rotation_bin [B]; view [B] or an int -> mean loss.
+    """
+    _, n_views, n_rot, height, width = logits.shape
+    view = torch.as_tensor(view, device=logits.device).expand(logits.shape[0])
+    index = ((view * n_rot + rotation_bin) * height + place_pixel[:, 0]) * width + place_pixel[:, 1]
+    return F.cross_entropy(logits.flatten(1), index.long())
+
+
+def unravel_argmax(logits: torch.Tensor) -> tuple[int, ...]:
+    """Index tuple of the maximum of one sample's logits (any shape)."""
+    flat = int(torch.argmax(logits))
+    return tuple(int(i) for i in torch.unravel_index(torch.tensor(flat), logits.shape))

@@ -1,0 +1,110 @@
+import math
+
+import pytest
+import torch
+
+from nerf_transporter import geometry as g
+from nerf_transporter.models import (
+    PoseRegression,
+    ResNet43_8s,
+    Transport,
+    columns_from_rotation,
+    cross_correlate,
+    placement_cross_entropy,
+    rotated_crops,
+    rotation_from_columns,
+)
+from nerf_transporter.models.mlp import quat_to_matrix
+
+
+@pytest.mark.parametrize("shape", [(1, 6, 32, 16), (3, 6, 20, 13)])
+def test_resnet_output_at_input_resolution(shape):
+    net = ResNet43_8s(6, 3, width=4)
+    assert net(torch.randn(shape)).shape == (shape[0], 3, *shape[2:])
+
+
+def test_rotated_crop_follows_world_yaw():
+    """+90 deg about world z takes +x (columns) to +y (rows): a pixel right of the centre goes below it."""
+    image = torch.zeros(1, 1, 21, 21)
+    image[0, 0, 10, 13] = 1.0  # 3 columns (+x) right of the centre pixel (10, 10)
+    crops = rotated_crops(image, torch.tensor([[10, 10]]), torch.tensor([0.0, math.pi / 2]), 8)
+    assert crops.shape == (1, 2, 1, 8, 8)
+    centre = 4
+    assert torch.isclose(crops[0, 0, 0, centre, centre + 3], torch.tensor(1.0))
+    assert torch.isclose(crops[0, 1, 0, centre + 3, centre], torch.tensor(1.0), atol=1e-5)
+    assert float(crops[0, 1].sum()) == pytest.approx(1.0, abs=1e-4)
+
+
+def test_cross_correlate_matches_direct_convolution():
+    torch.manual_seed(0)
+    query = torch.randn(2, 3, 4, 26, 21)
+    kernels = torch.randn(2, 5, 4, 6, 6)
+    out = cross_correlate(query, kernels, (20, 15))
+    for b in range(2):
+        direct = torch.nn.functional.conv2d(query[b], kernels[b])[..., :20, :15]
+        assert torch.allclose(out[b], direct, atol=1e-3)
+
+
+def test_transport_logits_shape_and_one_softmax_over_views():
+    torch.manual_seed(0)
+    transport = Transport(feature_channels=3, n_rotations=4, crop_size=8, width=4)
+    pick = torch.randn(2, 6, 24, 16)
+    places = torch.randn(2, 3, 6, 24, 16)
+    pixels = torch.tensor([[5, 5], [10, 8]])
+    logits = transport(pick, pixels, places)
+    assert logits.shape == (2, 3, 4, 24, 16)
+    bins = torch.tensor([1, 3])
+    loss = placement_cross_entropy(logits, pixels, bins)
+    flat = logits.flatten(1).log_softmax(1)
+    expected = -(flat[0, (1 * 24 + 5) * 16 + 5] + flat[1, (3 * 24 + 10) * 16 + 8]) / 2
+    assert torch.isclose(loss, expected, atol=1e-5)
+
+
+def test_transport_pick_rotation_shifts_rotation_bins():
+    """Turning the picked object by +90 deg (+2 of 8 bins) shifts the logits by -2 bins, exactly."""
+    torch.manual_seed(0)
+    n_rot, size = 8, 33
+    transport = Transport(feature_channels=3, n_rotations=n_rot, crop_size=16, width=4)
+    scene = torch.zeros(1, 6, size, size)
+    scene[..., 10:23, 10:23] = torch.randn(1, 6, 13, 13)  # content near the pick pixel only
+    # +90 deg about world z (x = columns towards y = rows) about the centre pixel (16, 16).
+    turned = torch.rot90(scene, k=-1, dims=(-2, -1))
+    probe = torch.zeros(1, 1, size, size)
+    probe[..., 16, 19] = 1.0
+    assert torch.rot90(probe, k=-1, dims=(-2, -1))[0, 0, 19, 16] == 1.0
+    place = torch.randn(1, 1, 6, 24, 16)
+    pick_pixel = torch.tensor([[16, 16]])
+    with torch.no_grad():
+        logits = transport(scene, pick_pixel, place)[0, 0]
+        logits_turned = transport(turned, pick_pixel, place)[0, 0]
+    shift = n_rot // 4
+    assert torch.allclose(logits_turned, logits.roll(-shift, dims=0), atol=1e-3)
+    assert not torch.allclose(logits_turned, logits, atol=1e-3)
+    # A label consistent with the yaw convention: the best bin moves by -2.
+    assert (
+        int(logits_turned.amax((1, 2)).argmax())
+        == (int(logits.amax((1, 2)).argmax()) - shift) % n_rot
+    )
+
+
+def test_pose_regression_shapes_and_gradients():
+    torch.manual_seed(0)
+    heads = PoseRegression(n_rotations=4, crop_size=8, width=4, n_features=4)
+    image = torch.randn(2, 6, 24, 16, requires_grad=True)
+    out = heads(
+        image,
+        torch.tensor([[3, 3], [20, 10]]),
+        image,
+        torch.tensor([[0, 0], [23, 15]]),
+        torch.tensor([0, 3]),
+    )
+    assert out.shape == (2, 3)
+    out.sum().backward()
+    assert image.grad is not None and float(image.grad.abs().sum()) > 0
+
+
+def test_rotation_columns_round_trip():
+    quat = torch.tensor(g.euler_to_quat(0.3, -0.2, 2.0), dtype=torch.float64)
+    matrix = quat_to_matrix(quat)
+    assert torch.allclose(matrix, torch.tensor(g.quat_to_matrix(quat.numpy())), atol=1e-9)
+    assert torch.allclose(rotation_from_columns(columns_from_rotation(matrix)), matrix, atol=1e-9)
