@@ -11,12 +11,11 @@ authors' protocol). Under DDP the seeds are shared out among the processes and t
 
 from __future__ import annotations
 
-import logging
-
 import lightning.pytorch as pl
 import numpy as np
 from lightning.pytorch.callbacks import Callback
 from lightning.pytorch.loggers import TensorBoardLogger
+from lightning.pytorch.utilities import rank_zero_info
 
 from nerf_transporter.evaluation.metrics import SuccessRate, wilson_interval
 from nerf_transporter.evaluation.rollout import (
@@ -26,8 +25,6 @@ from nerf_transporter.evaluation.rollout import (
     Evaluator,
 )
 from nerf_transporter.splits import split_seed
-
-log = logging.getLogger(__name__)
 
 SUCCESS_COLOUR = np.array([40, 200, 40], dtype=np.uint8)
 FAILURE_COLOUR = np.array([220, 40, 40], dtype=np.uint8)
@@ -56,6 +53,7 @@ class SuccessRateCallback(Callback):
     Task, setting, imagery kind and imagery config default to those of the DataModule (the
     evaluation imagery must be built like the training imagery); `imagery: oracle` swaps in the
     simulator's ground-truth views. `strip_episodes` rollouts are drawn into the logged image strip.
+    Imagery is cached under `cache_dir` per seed, so only the first evaluation fits NeRFs.
     """
 
     def __init__(
@@ -96,15 +94,14 @@ class SuccessRateCallback(Callback):
 
     def evaluate(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> dict[str, float]:
         """Run this process's share of the validation episodes; return the pooled figures."""
-        evaluator = self._get_evaluator(trainer)
-        results = [
-            evaluator.run_episode(
-                pl_module,
-                split_seed("validation", index),
-                record_frames=index < self.strip_episodes,
-            )
-            for index in range(trainer.global_rank, self.episodes, trainer.world_size)
-        ]
+        indices = range(trainer.global_rank, self.episodes, trainer.world_size)
+        results = self._get_evaluator(trainer).run(
+            pl_module,
+            [split_seed("validation", index) for index in indices],
+            progress=trainer.is_global_zero,
+            desc=f"validation episodes at step {trainer.global_step}",
+            record_frames=self.strip_episodes,
+        )
         self.metric = self.metric.to(pl_module.device)
         self.metric.reset()
         self.metric.update([result.success for result in results])
@@ -118,15 +115,10 @@ class SuccessRateCallback(Callback):
             "eval/episodes": float(episodes),
         }
         failures = [f"{r.seed}: {r.failure}" for r in results if r.failure is not None]
-        log.info(
-            "step %d: validation success %d/%d (%.0f%%, 95%% CI %.0f-%.0f%%)%s",
-            trainer.global_step,
-            successes,
-            episodes,
-            100 * rate,
-            100 * low,
-            100 * high,
-            "".join(f"\n  {line}" for line in failures),
+        rank_zero_info(
+            f"step {trainer.global_step}: validation success {successes}/{episodes} "
+            f"({100 * rate:.0f}%, 95% CI {100 * low:.0f}-{100 * high:.0f}%)"
+            + "".join(f"\n  seed {line}" for line in failures)
         )
         self._log(trainer, figures, rollout_strip(results))
         self._last_step = trainer.global_step

@@ -359,13 +359,20 @@ class Evaluator:
         )
 
     def run(
-        self, method: Policy, seeds: Iterable[int], progress: bool = False, desc: str = "evaluation"
+        self,
+        method: Policy,
+        seeds: Iterable[int],
+        progress: bool = False,
+        desc: str = "evaluation",
+        record_frames: int = 0,
     ) -> list[EpisodeResult]:
-        """Episodes for `seeds` in order, with an optional progress bar (successes so far)."""
+        """Episodes for `seeds` in order, the first `record_frames` with frames; an optional
+        progress bar shows the successes so far."""
         seeds = list(seeds)
         results: list[EpisodeResult] = []
         with tqdm(seeds, desc=desc, unit="episode", disable=not progress) as bar:
             for seed in bar:
-                results.append(self.run_episode(method, int(seed)))
+                frames = len(results) < record_frames
+                results.append(self.run_episode(method, int(seed), record_frames=frames))
                 bar.set_postfix(successes=sum(r.success for r in results))
         return results
