@@ -4,5 +4,7 @@
 - `cache`: evaluation imagery cached on disk by task, setting, seed and imagery config;
 - `metrics`: the `SuccessRate` torchmetrics metric and the 95% Wilson interval;
 - `callback`: `SuccessRateCallback`, validation success during training;
+- `testing`: `lightning test` runs test episodes and writes results.json beside the checkpoint;
+- `checkpoints`: `nerf-transporter evaluate-checkpoints`, validation success of every checkpoint;
 - `report`: `nerf-transporter report`, the results table.
 """
