@@ -43,8 +43,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     command, rest = argv[0], argv[1:]
     if command in LIGHTNING_COMMANDS:
-        lightning_main(argv)
-        return 0
+        return lightning_main(argv)
     if command not in TOOLS:
         print(f"nerf-transporter: unknown command {command!r}\n\n{_usage()}", file=sys.stderr)
         return 2
@@ -62,11 +61,11 @@ def run_name(model: Any, datamodule: Any) -> str:
     return f"{task}/{getattr(model, 'name', type(model).__name__.lower())}"
 
 
-def lightning_main(args: list[str] | None = None) -> None:
+def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
     """LightningCLI (omegaconf parser mode): `model` is any `Method`, `data` any LightningDataModule.
 
     Without an explicit `trainer.logger`, runs log with TensorBoard to `logs/<task>/<method>/version_N`
-    and checkpoints go to `checkpoints/` inside that folder.
+    and checkpoints go to `checkpoints/` inside that folder. Returns the `LightningCLI` object.
     """
     import lightning.pytorch as pl
     from lightning.pytorch.cli import LightningCLI
@@ -83,7 +82,7 @@ def lightning_main(args: list[str] | None = None) -> None:
                 )
             return super().instantiate_trainer(**kwargs)
 
-    NerfTransporterCLI(
+    return NerfTransporterCLI(
         Method,
         pl.LightningDataModule,
         subclass_mode_model=True,
@@ -91,7 +90,14 @@ def lightning_main(args: list[str] | None = None) -> None:
         parser_kwargs={"parser_mode": "omegaconf"},
         save_config_kwargs={"overwrite": True},
         args=args,
+        run=run,
     )
+
+
+def lightning_main(args: list[str] | None = None) -> int:
+    """The `lightning` console script: `lightning fit|validate|test|predict ...`."""
+    build_cli(args)
+    return 0
 
 
 if __name__ == "__main__":

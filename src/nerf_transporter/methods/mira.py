@@ -11,6 +11,7 @@ from nerf_transporter import geometry as g
 from nerf_transporter.data.labels import action_from_labels
 from nerf_transporter.data.preprocess import network_input
 from nerf_transporter.methods.base import Action, AttentionTransportMethod, Batch, check_image_shape
+from nerf_transporter.models.transport import correlate_spectrum, kernel_spectrum
 
 
 class Mira(AttentionTransportMethod):
@@ -72,12 +73,12 @@ class Mira(AttentionTransportMethod):
         pick_image = images[top : top + 1].to(self.device)
         pick = self.predict_pick(pick_image)
         kernels = self.transport.kernels(pick_image, torch.tensor([pick], device=self.device))
+        kernel_f = kernel_spectrum(kernels, height.shape[1:])
         best_value, best = -float("inf"), (0, 0, 0, 0)
         for start in range(0, len(views), self.view_chunk):
             chunk = images[None, start : start + self.view_chunk].to(self.device)
-            logits = self.transport.correlate(
-                self.transport.query_features(chunk), kernels, height.shape[1:]
-            )[0]
+            query = self.transport.query_features(chunk)
+            logits = correlate_spectrum(query, kernel_f, self.crop_size)[0]
             value = float(logits.max())
             if value > best_value:
                 view, rotation, row, col = np.unravel_index(int(logits.argmax()), logits.shape)

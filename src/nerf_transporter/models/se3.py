@@ -1,7 +1,7 @@
 """Transporter-SE(3) regression heads: place z, roll and pitch at a chosen (rotation, pixel).
 
 A key stream on the pick crop rotated by the chosen bin gives, per head, `n_features` kernels; a query
-stream on the padded place image gives the matching feature window at the chosen pixel. Their
+stream on the place image gives the matching feature window at the chosen pixel. Their
 correlations form one feature vector per head, which a small MLP maps to the regressed value.
 """
 
@@ -61,10 +61,8 @@ class PoseRegression(nn.Module):
         kernels = self.key(crop).reshape(
             batch, N_HEADS, self.n_features, self.feature_channels, size, size
         )
-        half = size // 2
-        query = self.query(nn.functional.pad(place_image, (half, half, half, half)))
-        # The window of the padded query map centred on the place pixel (exact integer sampling).
-        window = rotated_crops(query, place_pixel + half, torch.zeros(1), size)[:, 0]
+        # The query window centred on the place pixel, zero outside the image (integer sampling).
+        window = rotated_crops(self.query(place_image), place_pixel, torch.zeros(1), size)[:, 0]
         window = window.reshape(batch, N_HEADS, self.feature_channels, size, size)
         features = torch.einsum("bhncij,bhcij->bhn", kernels, window) / (size * size)
         return torch.cat([head(features[:, i]) for i, head in enumerate(self.heads)], dim=1)

@@ -1,0 +1,142 @@
+"""Time of one training step per method at full size, and of `mira.act` over the 49-view grid.
+
+Full size: 320 x 160 images (pixel size 0.003125 m), 36 rotations, 64 x 64 crops, batch size 1,
+`mira` with one negative view; the width is the configs' (`--width` to change it). Inputs are random
+tensors of the documented batch layout (the step time does not depend on the content).
+
+    python benchmarks/train_step.py [--json] [--width 16] [--repeats 3] [--device cpu]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import time
+
+import numpy as np
+import torch
+
+from nerf_transporter import geometry as g
+from nerf_transporter.methods import METHODS, Method
+
+STATE_DIM = 28
+
+
+def full_size_batch(input_kind: str, n_negative_views: int, device: torch.device) -> dict:
+    """One sample (B = 1) in the layout of docs/interfaces.md."""
+    height, width = g.image_shape()
+    pixel = torch.tensor([[height // 2, width // 2]], device=device)
+    labels = {"pick_pixel": pixel, "place_pixel": pixel + 10, "rotation_bin": torch.tensor([3])}
+    if input_kind == "state":
+        pose = torch.tensor([[0.5, 0.0, 0.05, 0.0, 0.0, 0.0, 1.0]])
+        return {"state": torch.randn(1, STATE_DIM), "pick": pose, "place": pose}
+    if input_kind == "imagery":
+        return {
+            **labels,
+            "pick_image": torch.randn(1, 6, height, width),
+            "place_images": torch.randn(1, 1 + n_negative_views, 6, height, width),
+        }
+    return {
+        **labels,
+        "image": torch.randn(1, 6, height, width),
+        "place_z": torch.tensor([0.05]),
+        "place_roll": torch.tensor([0.1]),
+        "place_pitch": torch.tensor([-0.1]),
+    }
+
+
+def synchronise(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+
+
+def time_steps(method: Method, batch: dict, repeats: int, device: torch.device) -> float:
+    """Median seconds of forward + backward + Adam step (after one warm-up step)."""
+    batch = {key: value.to(device) for key, value in batch.items()}
+    optimiser = method.configure_optimizers()
+    times = []
+    for _ in range(repeats + 1):
+        synchronise(device)
+        start = time.perf_counter()
+        loss = method.losses(batch)["loss"]
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+        synchronise(device)
+        times.append(time.perf_counter() - start)
+    return statistics.median(times[1:])
+
+
+def time_mira_act(method: Method, repeats: int, device: torch.device) -> float:
+    views = g.view_grid("normal")
+    rng = np.random.default_rng(0)
+    shape = (len(views), *g.image_shape())
+    observation = {
+        "imagery": {
+            "colour": rng.integers(0, 256, (*shape, 3), dtype=np.uint8),
+            "height": rng.uniform(0, 0.1, shape).astype(np.float16),
+            "views": views,
+        }
+    }
+    times = []
+    for _ in range(repeats):
+        synchronise(device)
+        start = time.perf_counter()
+        method.act(observation)
+        synchronise(device)
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--width", type=int, default=None, help="FCN width (default: configs')")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--negative-views", type=int, default=1)
+    parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
+    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    args = parser.parse_args()
+    device = torch.device(args.device)
+    torch.manual_seed(0)
+    results: dict = {
+        "device": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
+        "threads": torch.get_num_threads(),
+        "load_average_before": os.getloadavg()[0],
+        "image_shape": list(g.image_shape()),
+        "n_rotations": 36,
+        "crop_size": 64,
+        "negative_views": args.negative_views,
+        "step_seconds": {},
+    }
+    for name in args.methods:
+        cls = METHODS[name]
+        kwargs = {"state_dim": STATE_DIM} if cls.input_kind == "state" else {}
+        if args.width is not None and cls.input_kind != "state":
+            kwargs["width"] = args.width
+        method = cls(**kwargs).to(device)
+        if cls.input_kind != "state":
+            results["width"] = method.hparams["width"]
+        batch = full_size_batch(cls.input_kind, args.negative_views, device)
+        results["step_seconds"][name] = round(time_steps(method, batch, args.repeats, device), 4)
+        if name == "mira":
+            results["mira_act_49_views_seconds"] = round(
+                time_mira_act(method, args.repeats, device), 4
+            )
+        if not args.json:
+            print(f"{name:<16} step {results['step_seconds'][name]:.3f} s", flush=True)
+    results["load_average_after"] = os.getloadavg()[0]
+    if args.json:
+        print(json.dumps(results, indent=2))
+    else:
+        print(f"mira.act over 49 views: {results.get('mira_act_49_views_seconds', 'n/a')} s")
+        print(
+            f"device {results['device']}, {results['threads']} threads, load average "
+            f"{results['load_average_before']:.1f} -> {results['load_average_after']:.1f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
