@@ -1,0 +1,185 @@
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import lightning.pytorch as pl
+import numpy as np
+import pytest
+import torch
+from test_methods import SIZE, synthetic_batch, synthetic_observation
+from torch.utils.data import DataLoader
+
+from nerf_transporter.cli import build_cli, main
+from nerf_transporter.methods import METHODS, Mira, TransporterSE2
+
+REPO = Path(__file__).resolve().parents[1]
+TASK_CONFIGS = sorted((REPO / "configs").glob("*.yaml")) + sorted(
+    (REPO / "configs" / "quick").glob("*.yaml")
+)
+
+
+class SyntheticDataModule(pl.LightningDataModule):
+    """A few random samples shaped for the model's `input_kind` (docs/interfaces.md)."""
+
+    def __init__(
+        self,
+        task: str = "block-insertion",
+        setting: str = "normal",
+        batch_size: int = 2,
+        n_samples: int = 4,
+    ) -> None:
+        super().__init__()
+        self.task, self.setting = task, setting
+        self.batch_size, self.n_samples = batch_size, n_samples
+        self.pixel_size, self.n_rotations = SIZE["pixel_size"], SIZE["n_rotations"]
+
+    def setup(self, stage: str) -> None:
+        batch = synthetic_batch(self.trainer.lightning_module.input_kind, self.n_samples)
+        self.samples = [{k: v[i] for k, v in batch.items()} for i in range(self.n_samples)]
+
+    def train_dataloader(self) -> DataLoader:
+        return DataLoader(self.samples, batch_size=self.batch_size)
+
+
+def tiny_config(path: Path, **data_args) -> Path:
+    model_args = ", ".join(f"{k}: {v}" for k, v in SIZE.items())
+    data_args = ", ".join(f"{k}: {v}" for k, v in data_args.items())
+    path.write_text(
+        f"""seed_everything: 0
+trainer:
+  max_steps: 2
+  accelerator: cpu
+  devices: 1
+  log_every_n_steps: 1
+  enable_progress_bar: false
+  enable_model_summary: false
+model:
+  class_path: Mira
+  init_args: {{{model_args}, log_images_every_n_steps: 1}}
+data:
+  class_path: test_cli.SyntheticDataModule
+  init_args: {{{data_args}}}
+"""
+    )
+    return path
+
+
+@pytest.fixture(autouse=True)
+def in_tmp_dir(tmp_path, monkeypatch):
+    """Run in a temporary folder (logs/ goes there), as `lightning` with one thread."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "argv", ["lightning"])
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.mark.parametrize("command", [["fit", "--help"]])
+def test_fit_help(command, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        build_cli(command)
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    assert "--model" in out and "--data" in out and "--trainer.max_steps" in out
+
+
+def test_nerf_transporter_lists_and_runs_training_commands(capsys):
+    assert main([]) == 0
+    assert "fit" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exit_info:
+        main(["fit", "--help"])
+    assert exit_info.value.code == 0
+
+
+def test_misspelt_key_gives_a_clear_error(tmp_path, capsys):
+    config = tiny_config(tmp_path / "tiny.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("model:\n  class_path: Mira\n  init_args:\n    widht: 8\n")
+    with pytest.raises(SystemExit) as exit_info:
+        build_cli(["fit", "--config", str(config), "--config", str(bad)])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "widht" in err and "not accepted" in err
+
+
+@pytest.mark.parametrize("config", TASK_CONFIGS, ids=lambda p: f"{p.parent.name}/{p.stem}")
+def test_task_configs_build_mira_and_switch_method(config):
+    cli = build_cli(["--config", str(config)], run=False)
+    assert isinstance(cli.model, Mira)
+    assert cli.model.pixel_size == cli.datamodule.pixel_size
+    assert cli.model.n_rotations == cli.datamodule.n_rotations
+    assert cli.trainer.max_steps > 0
+    switched = build_cli(
+        ["--config", str(config), "--config", str(REPO / "configs/model/transporter_se2.yaml")],
+        run=False,
+    )
+    assert type(switched.model) is TransporterSE2
+    assert switched.model.hparams["width"] == cli.model.hparams["width"]
+    assert switched.model.lr == cli.model.lr
+    log_dir = Path(switched.trainer.logger.log_dir)
+    task = cli.datamodule.task + ("" if cli.datamodule.setting == "normal" else "-challenging")
+    assert log_dir.parent == Path("logs") / task / "transporter_se2"
+
+
+def test_paper_iteration_counts():
+    steps = {
+        "block_insertion": 40000,
+        "place_red_in_green": 24000,
+        "hanging_disks": 9000,
+        "stacking_kits": 20000,
+        "place_red_in_green_challenging": 40000,
+    }
+    for name, count in steps.items():
+        cli = build_cli(["--config", str(REPO / f"configs/{name}.yaml")], run=False)
+        assert cli.trainer.max_steps == count
+        assert cli.datamodule.n_demos == 10
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_two_step_fit_logs_and_checkpoints(name, tmp_path):
+    config = tiny_config(tmp_path / "tiny.yaml", batch_size=2)
+    cli = build_cli(
+        ["fit", "--config", str(config), "--config", str(REPO / f"configs/model/{name}.yaml")]
+    )
+    assert cli.trainer.global_step == 2
+    run_dir = tmp_path / "logs" / "block-insertion" / name / "version_0"
+    events = list(run_dir.glob("events.out.tfevents.*"))
+    assert events, f"no TensorBoard events in {run_dir}"
+    checkpoints = list((run_dir / "checkpoints").glob("*.ckpt"))
+    assert len(checkpoints) == 1
+    checkpoint = torch.load(checkpoints[0], weights_only=True)
+    hparams = {k: v for k, v in checkpoint["hyper_parameters"].items() if not k.startswith("_")}
+    reloaded = METHODS[name](**hparams)
+    reloaded.load_state_dict(checkpoint["state_dict"])
+    observation = synthetic_observation(reloaded.input_kind)
+    expected, actual = cli.model.act(observation), reloaded.act(observation)
+    for key in ("pick", "place"):
+        for a, b in zip(expected[key], actual[key], strict=True):
+            np.testing.assert_array_equal(a, b)
+    if reloaded.input_kind != "state":
+        from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+        accumulator = EventAccumulator(str(run_dir))
+        accumulator.Reload()
+        assert {"heatmap/pick", "heatmap/place"} <= set(accumulator.Tags()["images"])
+        assert "train/loss" in accumulator.Tags()["scalars"]
+
+
+def test_ddp_two_cpu_processes(tmp_path):
+    """Lightning's own DDP on two CPU processes (~15 s: two interpreters start)."""
+    config = tiny_config(tmp_path / "tiny.yaml", batch_size=1)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "tests"), str(REPO / "src")])}
+    result = subprocess.run(
+        [sys.executable, "-m", "nerf_transporter.cli", "fit", "--config", str(config)]
+        + ["--trainer.strategy", "ddp", "--trainer.devices", "2", "--trainer.accelerator", "cpu"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    run_dir = tmp_path / "logs" / "block-insertion" / "mira" / "version_0"
+    assert list((run_dir / "checkpoints").glob("*.ckpt"))
