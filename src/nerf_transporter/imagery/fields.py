@@ -163,6 +163,9 @@ class HashGridField(RadianceField):
             nn.Linear(levels * features, hidden), nn.ReLU(), nn.Linear(hidden, 16)
         )
         self.colour_net = nn.Sequential(nn.Linear(15, hidden), nn.ReLU(), nn.Linear(hidden, 3))
+        # start from the same uniform, nearly empty volume as the dense grid
+        nn.init.zeros_(self.geometry_net[-1].weight)
+        nn.init.zeros_(self.geometry_net[-1].bias)
 
     def _encode(self, points: torch.Tensor) -> torch.Tensor:
         low = torch.as_tensor(geometry.BOUNDS[:, 0], dtype=points.dtype, device=points.device)
@@ -189,7 +192,11 @@ class HashGridField(RadianceField):
             weights = torch.where(
                 corners[None].bool(), frac[:, None, :], 1.0 - frac[:, None, :]
             ).prod(-1)
-            values = self.tables[level][slot]  # [N, 8, F]
+            values = (
+                self.tables[level]
+                .index_select(0, slot.reshape(-1))
+                .view(*slot.shape, self.tables.shape[-1])
+            )
             encoded.append((weights[..., None] * values).sum(1))
         return torch.cat(encoded, dim=-1)
 
@@ -219,13 +226,24 @@ class HashGridField(RadianceField):
 class FloorMap(nn.Module):
     """Opaque floor at z = 0: a learned colour image over the box footprint, border-clamped outside."""
 
-    def __init__(self, cell_size: float) -> None:
+    def __init__(self, cell_size: float, colour: torch.Tensor | None = None) -> None:
+        """`colour` (RGB in (0, 1)) initialises the whole map, e.g. to the table's median colour."""
         super().__init__()
         nx, ny = (int(round(e / cell_size)) + 1 for e in BOX_EXTENT[:2])
-        self.image = nn.Parameter(torch.zeros(1, 3, ny, nx))
+        start = torch.zeros(1, 3, 1, 1)
+        if colour is not None:
+            start = torch.logit(colour.float().clamp(0.02, 0.98)).view(1, 3, 1, 1)
+        self.image = nn.Parameter(start.expand(1, 3, ny, nx).clone())
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:
         """RGB in [0, 1] of the floor below world points [N, 3] (their x, y) -> [N, 3]."""
         coords = _normalise(points)[:, :2].view(1, 1, -1, 2)
         values = F.grid_sample(self.image, coords, align_corners=True, padding_mode="border")
         return torch.sigmoid(values[0, :, 0].T)
+
+    def smoothness(self) -> torch.Tensor:
+        """Mean squared colour difference between neighbouring texels (a total-variation prior)."""
+        colour = torch.sigmoid(self.image)
+        rows = (colour[..., 1:, :] - colour[..., :-1, :]).square().mean()
+        cols = (colour[..., :, 1:] - colour[..., :, :-1]).square().mean()
+        return rows + cols

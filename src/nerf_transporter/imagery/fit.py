@@ -45,8 +45,14 @@ class ImageryConfig:
     iterations: int = 400
     batch_rays: int = 4096
     image_downscale: int = 2  # fit on images average-pooled by this factor
-    learning_rate: float = 0.1
+    learning_rate: float = 0.1  # dense colour grid
+    density_learning_rate: float = 0.3  # dense density grid (opaque needs raw values of ~+8)
+    floor_learning_rate: float = (
+        0.01  # low, so objects are explained by density, not painted on the floor
+    )
     hash_learning_rate: float = 0.01
+    hash_levels: int = 16
+    hash_log2_table: int = 19
     voxel_size: float = 0.003125
     colour_downscale: int = 2  # colour grid at 1 / this of the density resolution
     stage_scales: tuple[int, ...] = (4, 2, 1)  # coarse-to-fine: grid at 1 / scale of the finest
@@ -62,7 +68,11 @@ class ImageryConfig:
     occupancy_interval: int = 16
     occupancy_warmup: int = 32
     samples_per_segment: int = 4  # sample spacing = occupancy cell edge / samples_per_segment
-    sparsity_weight: float = 1e-3
+    sparsity_weight: float = 0.003  # times the opacity summed along a ray, averaged over rays
+    binary_weight: float = 0.1  # times the entropy of the floor's share of each ray
+    binary_ramp: float = 0.25  # fraction of the iterations over which binary_weight ramps up
+    floor_smoothness_weight: float = 0.01  # times the mean squared colour step of the floor map
+    final_learning_rate_factor: float = 0.1  # exponential decay of the learning rate to this factor
     pixel_size: float = geometry.PIXEL_SIZE  # of the rendered orthographic views
     render_batch: int = 1 << 16
     segments_per_round: int = 2
@@ -192,6 +202,16 @@ def _floor_rays(
     return torch.cat(chosen)
 
 
+def _binary_entropy(probability: torch.Tensor) -> torch.Tensor:
+    """Mean entropy of probabilities: low when each is near 0 or 1.
+
+    A textureless table lets a half-transparent object blend to the right colour from every
+    camera; this term makes each ray either end on the floor or be stopped by the field.
+    """
+    p = probability.clamp(1e-6, 1.0 - 1e-6)
+    return -(p * p.log() + (1.0 - p) * (1.0 - p).log()).mean()
+
+
 def _stage_at(config: ImageryConfig, iteration: int) -> int:
     progress = iteration / config.iterations
     stage = 0
@@ -205,10 +225,16 @@ def _optimizer(
     config: ImageryConfig, field: RadianceField, floor: FloorMap
 ) -> torch.optim.Optimizer:
     """Fused Adam (one pass over each grid; several times faster than the default on CPU)."""
-    parameters = [*field.parameters(), *floor.parameters()]
-    if config.field == "hash":
-        return torch.optim.Adam(parameters, lr=config.hash_learning_rate, eps=1e-15, fused=True)
-    return torch.optim.Adam(parameters, lr=config.learning_rate, fused=True)
+    groups = [{"params": list(floor.parameters()), "lr": config.floor_learning_rate}]
+    if isinstance(field, DenseGridField):
+        groups.append({"params": [field.density_grid], "lr": config.density_learning_rate})
+        groups.append({"params": [field.colour_grid], "lr": config.learning_rate})
+    else:
+        groups.append({"params": list(field.parameters()), "lr": config.hash_learning_rate})
+    optimizer = torch.optim.Adam(groups, eps=1e-15 if config.field == "hash" else 1e-8, fused=True)
+    for group in optimizer.param_groups:
+        group["initial_lr"] = group["lr"]
+    return optimizer
 
 
 def fit_scene(
@@ -239,7 +265,10 @@ def fit_scene(
     flat_pixels = pixels.view(-1, 3)
 
     field_ = make_field(config).to(device)
-    floor = FloorMap(config.floor_cell).to(device)
+    floor_colour = (
+        flat_pixels[candidates[:: max(1, candidates.numel() // 65536)]].median(dim=0).values
+    )
+    floor = FloorMap(config.floor_cell, floor_colour.cpu()).to(device)
     occupancy = OccupancyGrid(
         tuple(v // config.occupancy_cell for v in config.voxels), device=device
     )
@@ -264,14 +293,23 @@ def fit_scene(
         cols = flat % width
         rays = perspective_rays(k, poses, camera, rows, cols)
         output = render_rays_train(field_, floor, occupancy, rays, settings, generator)
+        ramp = min(1.0, iteration / max(1.0, config.binary_ramp * config.iterations))
         colour_loss = F.mse_loss(output.colour, flat_pixels[flat])
-        sparsity = output.alpha.mean() if output.alpha.numel() else output.colour.new_zeros(())
-        loss = colour_loss + config.sparsity_weight * sparsity
+        sparsity = output.alpha.sum() / len(rays)
+        loss = (
+            colour_loss
+            + config.sparsity_weight * sparsity
+            + config.binary_weight * ramp * _binary_entropy(output.floor_weight)
+            + config.floor_smoothness_weight * floor.smoothness()
+        )
         if not torch.isfinite(loss):
             raise NonFiniteLossError(
-                f"fitting loss became {float(loss)} at iteration {iteration}; the fit was stopped "
+                f"fitting loss became {float(loss.detach())} at iteration {iteration}; the fit was stopped "
                 "and nothing was written (lower learning_rate or check the input images and poses)"
             )
+        decay = config.final_learning_rate_factor ** (iteration / config.iterations)
+        for group in optimizer.param_groups:
+            group["lr"] = group["initial_lr"] * decay
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()

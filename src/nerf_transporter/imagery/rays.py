@@ -39,7 +39,8 @@ class Rays:
     @property
     def exits_through_floor(self) -> torch.Tensor:
         """True where the ray crosses the box and leaves it through its bottom face."""
-        return (self.far > self.near) & ((self.floor - self.far).abs() <= 1e-5)
+        descending = self.directions[:, 2] < -1e-9
+        return descending & (self.far > self.near) & ((self.floor - self.far).abs() <= 1e-5)
 
 
 def _safe(directions: torch.Tensor) -> torch.Tensor:

@@ -38,6 +38,7 @@ class RayOutput:
     colour: torch.Tensor  # [R, 3] in [0, 1]
     depth: torch.Tensor  # [R] expected termination distance
     alpha: torch.Tensor  # [S] opacity of every sample taken (for regularisers)
+    floor_weight: torch.Tensor  # [R] transmittance left for the floor
 
 
 def _composite(
@@ -95,7 +96,7 @@ def render_rays_train(
     ones = torch.ones(len(rays), device=t.device)
     colour, depth, remaining, alpha = _composite(field, rays, t, valid, ones, settings)
     colour, depth = _end_on_floor(floor, rays, colour, depth, remaining)
-    return RayOutput(colour, depth, alpha)
+    return RayOutput(colour, depth, alpha, remaining)
 
 
 @torch.no_grad()
