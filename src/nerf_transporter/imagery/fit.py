@@ -231,7 +231,11 @@ def _optimizer(
         groups.append({"params": [field.colour_grid], "lr": config.learning_rate})
     else:
         groups.append({"params": list(field.parameters()), "lr": config.hash_learning_rate})
-    optimizer = torch.optim.Adam(groups, eps=1e-15 if config.field == "hash" else 1e-8, fused=True)
+    eps = 1e-15 if config.field == "hash" else 1e-8
+    try:
+        optimizer = torch.optim.Adam(groups, eps=eps, fused=True)
+    except RuntimeError:  # fused Adam needs torch >= 2.4 on CPU
+        optimizer = torch.optim.Adam(groups, eps=eps)
     for group in optimizer.param_groups:
         group["initial_lr"] = group["lr"]
     return optimizer
