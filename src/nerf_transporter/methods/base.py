@@ -18,6 +18,9 @@ from nerf_transporter.models.transport import placement_cross_entropy, unravel_a
 Batch = dict[str, torch.Tensor]
 Action = dict[str, g.Pose]
 INPUT_KINDS = ("imagery", "heightmap", "state")
+# FCN width of the image methods: 16 keeps a full-size mira step near 2 s on a 2-core CPU;
+# Transporter networks use 64 (set model.init_args.width on a GPU).
+DEFAULT_WIDTH = 16
 
 
 class Method(ClosedLoopTest, L.LightningModule):
@@ -149,7 +152,7 @@ class AttentionTransportMethod(Method):
         pixel_size: float = g.PIXEL_SIZE,
         n_rotations: int = 36,
         crop_size: int = 64,
-        width: int = 64,
+        width: int = DEFAULT_WIDTH,
         feature_channels: int = 3,
     ) -> None:
         super().__init__(lr=lr, log_images_every_n_steps=log_images_every_n_steps)

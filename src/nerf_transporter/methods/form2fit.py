@@ -9,6 +9,7 @@ import torch
 from nerf_transporter import geometry as g
 from nerf_transporter.data.labels import action_from_labels
 from nerf_transporter.methods.base import (
+    DEFAULT_WIDTH,
     Action,
     Batch,
     Method,
@@ -37,7 +38,7 @@ class Form2Fit(Method):
         pixel_size: float = g.PIXEL_SIZE,
         n_rotations: int = 36,
         crop_size: int = 64,
-        width: int = 64,
+        width: int = DEFAULT_WIDTH,
         descriptor_dim: int = 16,
         margin: float = 1.0,
     ) -> None:

@@ -10,7 +10,13 @@ import torch
 from nerf_transporter import geometry as g
 from nerf_transporter.data.labels import action_from_labels
 from nerf_transporter.data.preprocess import network_input
-from nerf_transporter.methods.base import Action, AttentionTransportMethod, Batch, check_image_shape
+from nerf_transporter.methods.base import (
+    DEFAULT_WIDTH,
+    Action,
+    AttentionTransportMethod,
+    Batch,
+    check_image_shape,
+)
 from nerf_transporter.models.transport import correlate_spectrum, kernel_spectrum
 
 
@@ -32,7 +38,7 @@ class Mira(AttentionTransportMethod):
         pixel_size: float = g.PIXEL_SIZE,
         n_rotations: int = 36,
         crop_size: int = 64,
-        width: int = 64,
+        width: int = DEFAULT_WIDTH,
         feature_channels: int = 3,
         view_chunk: int = 8,
     ) -> None:

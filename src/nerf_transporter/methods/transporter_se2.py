@@ -10,6 +10,7 @@ import torch
 from nerf_transporter import geometry as g
 from nerf_transporter.data.labels import action_from_labels
 from nerf_transporter.methods.base import (
+    DEFAULT_WIDTH,
     Action,
     AttentionTransportMethod,
     Batch,
@@ -31,7 +32,7 @@ class TransporterSE2(AttentionTransportMethod):
         pixel_size: float = g.PIXEL_SIZE,
         n_rotations: int = 36,
         crop_size: int = 64,
-        width: int = 64,
+        width: int = DEFAULT_WIDTH,
         feature_channels: int = 3,
     ) -> None:
         super().__init__(

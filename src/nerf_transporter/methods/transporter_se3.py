@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 
 from nerf_transporter import geometry as g
-from nerf_transporter.methods.base import Action, Batch, heightmap_tensors
+from nerf_transporter.methods.base import DEFAULT_WIDTH, Action, Batch, heightmap_tensors
 from nerf_transporter.methods.transporter_se2 import TransporterSE2
 from nerf_transporter.models import PoseRegression
 
@@ -28,7 +28,7 @@ class TransporterSE3(TransporterSE2):
         pixel_size: float = g.PIXEL_SIZE,
         n_rotations: int = 36,
         crop_size: int = 64,
-        width: int = 64,
+        width: int = DEFAULT_WIDTH,
         feature_channels: int = 3,
         regression_features: int = 8,
     ) -> None:

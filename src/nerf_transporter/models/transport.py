@@ -78,7 +78,10 @@ def correlate_spectrum(query: torch.Tensor, kernel_f: torch.Tensor, crop_size: i
     height, width = query.shape[-2:]
     shape = fft_shape((height, width), crop_size)
     query_f = torch.fft.rfft2(query, s=shape)
-    product = torch.einsum("bvcij,brcij->bvrij", query_f, kernel_f.conj())
+    kernel_f = kernel_f.conj()[:, None]  # [B, 1, R, C, h, w]
+    product = query_f[:, :, None, 0] * kernel_f[:, :, :, 0]
+    for channel in range(1, query_f.shape[2]):  # few channels: a loop beats a complex einsum
+        product += query_f[:, :, None, channel] * kernel_f[:, :, :, channel]
     full = torch.fft.irfft2(product, s=shape)
     # Circular index (y - k/2) mod Hp holds output row y.
     half = crop_size // 2
