@@ -10,8 +10,11 @@ NOTEBOOK = Path(__file__).resolve().parents[1] / "notebooks" / "mental_imagery.i
 @pytest.mark.slow
 def test_mental_imagery_notebook_runs():
     notebook = nbformat.read(NOTEBOOK, as_version=4)
-    NotebookClient(notebook, timeout=1200, kernel_name="python3").execute(
-        resources={"metadata": {"path": str(NOTEBOOK.parent)}}
-    )
+    NotebookClient(
+        notebook,
+        timeout=1200,
+        kernel_name="python3",
+        resources={"metadata": {"path": str(NOTEBOOK.parent)}},
+    ).execute()
     outputs = notebook.cells[-1].outputs
     assert outputs and "psnr_top_down_db" in outputs[0]["data"]["text/plain"]
