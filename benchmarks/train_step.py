@@ -4,7 +4,10 @@ Full size: 320 x 160 images (pixel size 0.003125 m), 36 rotations, 64 x 64 crops
 `mira` with one negative view; the width is the configs' (`--width` to change it). Inputs are random
 tensors of the documented batch layout (the step time does not depend on the content).
 
-    python benchmarks/train_step.py [--json] [--width 16] [--repeats 3] [--device cpu]
+    python benchmarks/train_step.py [--json] [--width 16] [--repeats 3] [--device cpu] [--threads 1]
+
+On a CPU shared with other processes, two OpenMP threads can be ~10x slower than one (measured:
+mira step 21 s with 2 threads vs 2.5 s with 1 at load average 3); compare figures at equal load.
 """
 
 from __future__ import annotations
@@ -97,8 +100,13 @@ def main() -> None:
     parser.add_argument("--negative-views", type=int, default=1)
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    parser.add_argument(
+        "--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)"
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args()
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
     device = torch.device(args.device)
     torch.manual_seed(0)
     results: dict = {
