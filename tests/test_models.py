@@ -13,6 +13,7 @@ from nerf_transporter.models import (
     placement_cross_entropy,
     rotated_crops,
     rotation_from_columns,
+    unravel_argmax,
 )
 from nerf_transporter.models.mlp import quat_to_matrix
 
@@ -120,3 +121,27 @@ def test_rotation_columns_round_trip():
     matrix = quat_to_matrix(quat)
     assert torch.allclose(matrix, torch.tensor(g.quat_to_matrix(quat.numpy())), atol=1e-9)
     assert torch.allclose(rotation_from_columns(columns_from_rotation(matrix)), matrix, atol=1e-9)
+
+
+def test_transport_translation():
+    """Moving the picked object with its pick pixel leaves the place logits unchanged; moving the
+    place content moves the correlation peak by the same offset."""
+    torch.manual_seed(0)
+    transport = Transport(feature_channels=3, n_rotations=4, crop_size=8, width=4)
+    scene = torch.zeros(1, 6, 40, 24)
+    scene[..., 8:13, 6:11] = torch.randn(1, 6, 5, 5)
+    moved = scene.roll((16, 8), dims=(-2, -1))
+    place = torch.randn(1, 1, 6, 24, 16)
+    with torch.no_grad():
+        logits = transport(scene, torch.tensor([[10, 8]]), place)
+        logits_moved = transport(moved, torch.tensor([[26, 16]]), place)
+    assert torch.allclose(logits, logits_moved, atol=1e-4)
+    kernels = torch.randn(1, 4, 3, 8, 8)
+    kernels = kernels / kernels.flatten(2).norm(dim=2)[..., None, None, None]  # unit norm
+    query = torch.zeros(1, 1, 3, 40, 24)
+    query[..., 10:18, 4:12] = kernels[0, 2]  # content that kernel 2 matches best
+    peak = cross_correlate(query, kernels)[0, 0]
+    shifted = cross_correlate(query.roll((12, 8), dims=(-2, -1)), kernels)[0, 0]
+    assert unravel_argmax(peak)[0] == 2
+    rotation, row, col = unravel_argmax(peak)
+    assert unravel_argmax(shifted) == (rotation, row + 12, col + 8)
