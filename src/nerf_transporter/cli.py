@@ -9,9 +9,18 @@ from typing import Any
 
 # sub-command -> ("module:function", one-line help). Each function takes argv and returns an exit code.
 TOOLS: dict[str, tuple[str, str]] = {
-    "oracle": ("nerf_transporter.sim.oracle_cli:main", "run oracle episodes, print the success rate"),
-    "generate": ("nerf_transporter.data.generate:main", "oracle demonstrations -> episodes on disk"),
-    "dataset-info": ("nerf_transporter.data.info:main", "episodes, seeds, imagery quality (--verify)"),
+    "oracle": (
+        "nerf_transporter.sim.oracle_cli:main",
+        "run oracle episodes, print the success rate",
+    ),
+    "generate": (
+        "nerf_transporter.data.generate:main",
+        "oracle demonstrations -> episodes on disk",
+    ),
+    "dataset-info": (
+        "nerf_transporter.data.info:main",
+        "episodes, seeds, imagery quality (--verify)",
+    ),
     "report": ("nerf_transporter.evaluation.report:main", "results table (markdown or --csv)"),
     "evaluate-checkpoints": ("nerf_transporter.evaluation.checkpoints:main", "rank checkpoints"),
 }
