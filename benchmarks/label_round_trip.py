@@ -8,7 +8,8 @@ on the same seed and reports the success rate:
 - `mira`: top-down pick pixel + height, place view + pixel + height of that view, rotation bin;
 - `heightmap`: top-down pixels, rotation bin, place z, roll and pitch (pick height from the view).
 
-    python benchmarks/label_round_trip.py --demos 20 [--tasks block-insertion ...] [--json]
+    python benchmarks/label_round_trip.py --demos 20 [--tasks block-insertion ...]
+        [--pixel-size 0.00625 --rotations 12] [--json]
 """
 
 from __future__ import annotations
@@ -27,19 +28,24 @@ from nerf_transporter.data.generate import (
     generate_dataset,
     pose_error_text,
 )
-from nerf_transporter.data.labels import action_from_labels, heightmap_labels, mira_labels
+from nerf_transporter.data.labels import (
+    N_ROTATIONS,
+    action_from_labels,
+    heightmap_labels,
+    mira_labels,
+)
 from nerf_transporter.sim import TASKS, make_env
 
 
 def rebuilt_actions(
-    meta: dict, imagery: dict, grid: np.ndarray, pixel_size: float
+    meta: dict, imagery: dict, grid: np.ndarray, pixel_size: float, n_rotations: int
 ) -> dict[str, dict]:
     """The actions a perfect policy of each label family would output for this demo."""
     action = action_from_meta(meta)
     height = imagery["height"].astype(np.float32)
     top = g.top_down_view_index(grid)
-    mira = mira_labels(action, grid, pixel_size)
-    flat = heightmap_labels(action, pixel_size)
+    mira = mira_labels(action, grid, pixel_size, n_rotations)
+    flat = heightmap_labels(action, pixel_size, n_rotations)
     return {
         "mira": action_from_labels(
             mira.pick_pixel,
@@ -49,6 +55,7 @@ def rebuilt_actions(
             mira.rotation_bin,
             place_view=tuple(grid[mira.place_view]),
             pixel_size=pixel_size,
+            n_rotations=n_rotations,
         ),
         "heightmap": action_from_labels(
             flat.pick_pixel,
@@ -58,12 +65,19 @@ def rebuilt_actions(
             flat.rotation_bin,
             place_tilt=(flat.place_roll, flat.place_pitch),
             pixel_size=pixel_size,
+            n_rotations=n_rotations,
         ),
     }
 
 
 def measure(
-    task: str, setting: str, demos: int, data_dir: str, pixel_size: float, workers: int
+    task: str,
+    setting: str,
+    demos: int,
+    data_dir: str,
+    pixel_size: float,
+    n_rotations: int,
+    workers: int,
 ) -> dict:
     config = GenerationConfig(task, setting, "train", "oracle", pixel_size, nerf_views=0)
     start = time.perf_counter()
@@ -75,7 +89,7 @@ def measure(
         for ref in ep.list_episodes(dataset)[:demos]:
             episode = ep.load_episode(ref.path, ["imagery"])
             actions = rebuilt_actions(
-                episode.meta, episode.arrays["imagery"], config.grid, pixel_size
+                episode.meta, episode.arrays["imagery"], config.grid, pixel_size, n_rotations
             )
             for family, action in actions.items():
                 env.reset(seed=ref.seed)
@@ -89,6 +103,8 @@ def measure(
         "task": task,
         "setting": setting,
         "demos": len(results["mira"]),
+        "pixel_size": pixel_size,
+        "n_rotations": n_rotations,
         "oracle_failed_seeds": len(ep.failed_seeds(dataset)),
         "generation_s": round(generation_s, 1),
     }
@@ -109,11 +125,20 @@ def main() -> None:
     parser.add_argument("--demos", type=int, default=20)
     parser.add_argument("--data-dir", default="data/benchmarks")
     parser.add_argument("--pixel-size", type=float, default=g.PIXEL_SIZE)
+    parser.add_argument("--rotations", type=int, default=N_ROTATIONS, help="rotation bins")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     rows = [
-        measure(task, args.setting, args.demos, args.data_dir, args.pixel_size, args.workers)
+        measure(
+            task,
+            args.setting,
+            args.demos,
+            args.data_dir,
+            args.pixel_size,
+            args.rotations,
+            args.workers,
+        )
         for task in args.tasks
     ]
     for row in rows:
