@@ -8,6 +8,7 @@ from nerf_transporter.sim import make_env
 from nerf_transporter.sim.assets import set_pose
 from nerf_transporter.sim.primitives import APPROACH, offset_along_z
 from nerf_transporter.sim.tasks.base import SETTINGS
+from nerf_transporter.sim.tasks.block_insertion import ARM, CLEARANCE, SIZE, WALL
 
 
 @pytest.fixture(scope="module")
@@ -69,3 +70,23 @@ def test_oracle_solves_an_episode(setting, seed):
     assert reward == 1.0 and terminated, info
     assert info["failure"] is None
     environment.close()
+
+
+def test_slot_is_visible_in_colour():
+    """An RGB-only policy must see the slot: its floor is darker than the wall tops around it."""
+    env = make_env("block-insertion", "flat")
+    try:
+        env.reset(seed=3)
+        colour, _ = env.render_orthographic(0.0, 0.0)
+        target = geometry.pose_to_matrix(env.task.target_poses[0])
+    finally:
+        env.close()
+    half, wall = SIZE / 2, (CLEARANCE + WALL / 2)
+    # in the fixture frame: the corner of the L (slot floor) and the middle of two outer walls
+    points = np.array(
+        [[-half + ARM / 2, -half + ARM / 2, 0.0], [-half - wall, 0, 0], [0, -half - wall, 0]]
+    )
+    world = points @ target[:3, :3].T + target[:3, 3]
+    rows, cols = np.round(geometry.world_to_pixel(world)).astype(int).T
+    brightness = colour[rows, cols].astype(float).sum(axis=1)
+    assert brightness[0] < 0.75 * brightness[1:].min(), brightness

@@ -37,14 +37,24 @@ def l_block_parts() -> list[assets.Box]:
 
 
 def fixture_parts() -> list[assets.Box]:
-    """The fixture in the frame the block has when inserted: a floor and walls around an L slot."""
+    """The fixture in the frame the block has when inserted: a floor and walls around an L slot.
+
+    The floor is darker than the walls, as the floor of a real slot lies in shade: under the
+    renderer's shadowless light a one-colour slot is invisible in RGB (its floor and the wall tops
+    face up alike), and an RGB-only policy could not tell where or how the L points.
+    """
     half, h, c, t = SIZE / 2, HEIGHT / 2, CLEARANCE, WALL
     inner = -half + ARM
     lo, hi = -half - c, half + c  # slot extent
     outer_lo, outer_hi = lo - t, hi + t
     walls_z = (-h, -h + SLOT_DEPTH)
     return [
-        assets.box_from_bounds((outer_lo, outer_hi), (outer_lo, outer_hi), (-h - FLOOR, -h)),
+        assets.box_from_bounds(
+            (outer_lo, outer_hi),
+            (outer_lo, outer_hi),
+            (-h - FLOOR, -h),
+            assets.COLORS["dark_brown"],
+        ),
         assets.box_from_bounds((outer_lo, lo), (outer_lo, outer_hi), walls_z),
         assets.box_from_bounds((lo, outer_hi), (outer_lo, lo), walls_z),
         assets.box_from_bounds((hi, outer_hi), (lo, inner + c), walls_z),
