@@ -7,7 +7,7 @@ from test_data_generate import MARK, PIXEL, FakeEnv
 
 from nerf_transporter import geometry as g
 from nerf_transporter.data import generate as gen
-from nerf_transporter.data.datamodule import RavensDataModule
+from nerf_transporter.data.datamodule import RavensDataModule, sample_negative_views
 from nerf_transporter.data.preprocess import COLOUR_MEAN, COLOUR_STD
 
 H, W = g.image_shape(PIXEL)
@@ -138,3 +138,24 @@ def test_non_imagery_methods_do_not_generate_nerf_imagery(fake_world, tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["block-insertion-normal-train-oracle-px0.0125"]
     module.setup("fit")
     assert len(module.train_dataset) == 3
+
+
+def test_negative_views_are_distinct_and_near_ones_weighted_up():
+    views = g.view_grid("normal")
+    positive = g.top_down_view_index(views)
+    neighbour = np.linalg.norm(views - views[positive], axis=1) < 0.26  # 8 neighbours + itself
+
+    def neighbour_share(scale):
+        rng = np.random.default_rng(0)
+        draws = [sample_negative_views(rng, views, positive, 4, scale) for _ in range(300)]
+        for negatives in draws:
+            assert len(set(negatives.tolist())) == 4 and positive not in negatives
+        return neighbour[np.concatenate(draws)].mean()
+
+    assert neighbour_share(None) == pytest.approx(8 / 48, abs=0.04)
+    assert neighbour_share(0.1) > 0.6
+
+
+def test_negative_view_scale_must_be_positive(tmp_path):
+    with pytest.raises(ValueError, match="negative_view_scale"):
+        make(tmp_path, negative_view_scale=0.0)

@@ -3,7 +3,8 @@
 The model's `input_kind` picks the batch layout:
 
 - `imagery` (mira): the top-down pick view, the positive place view followed by K negative views
-  (other grid views of the same scene), pixels and the rotation bin;
+  (other grid views of the same scene: uniform, or weighted towards the positive with
+  `negative_view_scale`), pixels and the rotation bin;
 - `heightmap` (transporter_se2/se3, form2fit): the fused RGB-D heightmap, pixels, rotation bin and
   the place z, roll and pitch;
 - `state` (gt_state_mlp): the state vector and the oracle pick and place poses.
@@ -115,6 +116,28 @@ class SeededSampler(Sampler):
         return iter(zip(demos.tolist(), seeds.tolist(), strict=True))
 
 
+def sample_negative_views(
+    rng: np.random.Generator,
+    views: np.ndarray,
+    positive: int,
+    count: int,
+    scale: float | None = None,
+) -> np.ndarray:
+    """`count` distinct views other than `positive`, drawn uniformly or, with `scale` (radians),
+    with weight exp(-distance / scale) from the positive's (roll, pitch).
+
+    Near views are the ones `act` confuses with the right one (a neighbour of the grid is 10 deg
+    away), so weighting towards them spends the few negatives of a step where they teach most.
+    """
+    others = np.setdiff1d(np.arange(len(views)), [positive])
+    weights = None
+    if scale is not None:
+        distance = np.linalg.norm(views[others] - views[positive], axis=1)
+        weights = np.exp(-distance / scale)
+        weights /= weights.sum()
+    return rng.choice(others, size=count, replace=False, p=weights)
+
+
 class DemoDataset(Dataset):
     """Samples of one input kind; an item is (demo index, sample seed) from `SeededSampler`."""
 
@@ -127,12 +150,17 @@ class DemoDataset(Dataset):
         n_negative_views: int = 0,
         augment: bool = False,
         n_rotations: int = N_ROTATIONS,
+        views: np.ndarray | None = None,
+        negative_view_scale: float | None = None,
     ) -> None:
         if input_kind not in INPUT_KINDS:
             raise ValueError(f"unknown input_kind {input_kind!r}; valid: {', '.join(INPUT_KINDS)}")
+        if input_kind == "imagery" and views is None:
+            raise ValueError("imagery samples need the view grid (views=[V, 2] roll, pitch)")
         self.demos, self.input_kind = demos, input_kind
         self.pixel_size, self.n_negative_views = pixel_size, n_negative_views
         self.augment, self.n_rotations = augment, n_rotations
+        self.views, self.negative_view_scale = views, negative_view_scale
         self.shape = g.image_shape(pixel_size)
 
     def __len__(self) -> int:
@@ -171,8 +199,9 @@ class DemoDataset(Dataset):
             sample["place_roll"] = torch.tensor(labels.place_roll, dtype=torch.float32)
             sample["place_pitch"] = torch.tensor(labels.place_pitch, dtype=torch.float32)
             return sample
-        others = np.setdiff1d(np.arange(len(demo.colour)), [labels.place_view])
-        negatives = rng.choice(others, size=self.n_negative_views, replace=False)
+        negatives = sample_negative_views(
+            rng, self.views, labels.place_view, self.n_negative_views, self.negative_view_scale
+        )
         views = np.concatenate([[demo.pick_view, labels.place_view], negatives]).astype(int)
         colour = transform.apply_images(demo.colour[views])
         height = transform.apply_images(demo.height[views])
@@ -208,6 +237,7 @@ class RavensDataModule(pl.LightningDataModule):
         imagery: str = "nerf",
         pixel_size: float = g.PIXEL_SIZE,
         n_negative_views: int = 4,
+        negative_view_scale: float | None = None,
         augment: bool = True,
         generate_missing: bool = True,
         seed: int = 0,
@@ -229,6 +259,10 @@ class RavensDataModule(pl.LightningDataModule):
         n_views = len(g.view_grid(setting))
         if not 0 <= n_negative_views < n_views:
             raise ValueError(f"n_negative_views must be in [0, {n_views - 1}] for {n_views} views")
+        if negative_view_scale is not None and negative_view_scale <= 0:
+            raise ValueError(
+                f"negative_view_scale must be > 0 (radians), got {negative_view_scale}"
+            )
         GenerationConfig(
             task, setting, "train", imagery, pixel_size, nerf_views, tuple(nerf_image_size)
         )  # validates
@@ -236,6 +270,7 @@ class RavensDataModule(pl.LightningDataModule):
         self.data_dir, self.batch_size, self.num_workers = Path(data_dir), batch_size, num_workers
         self.imagery, self.pixel_size = imagery, pixel_size
         self.n_negative_views, self.augment = n_negative_views, augment
+        self.negative_view_scale = negative_view_scale
         self.generate_missing, self.seed, self.input_kind = generate_missing, seed, input_kind
         self.n_val_demos, self.samples_per_epoch, self.n_rotations = (
             n_val_demos,
@@ -329,6 +364,8 @@ class RavensDataModule(pl.LightningDataModule):
             "pixel_size": self.pixel_size,
             "n_negative_views": self.n_negative_views,
             "n_rotations": self.n_rotations,
+            "views": g.view_grid(self.setting),
+            "negative_view_scale": self.negative_view_scale,
         }
         if stage in (None, "fit") and self.train_dataset is None:
             demos = self.load_split("train", self.n_demos, input_kind)
