@@ -141,3 +141,15 @@ def test_cuda_is_chosen_when_available():
     images = scene.images(intrinsics, poses, (24, 32))
     fitted = fit_scene(images, intrinsics, poses, tiny_config(iterations=3, device="auto"))
     assert fitted.device.type == "cuda"
+
+
+@pytest.mark.parametrize("mode", [torch.inference_mode, torch.no_grad])
+def test_fit_works_inside_inference_mode(scene_and_views, mode):
+    """`lightning test` runs closed-loop episodes, NeRF fits included, under inference mode."""
+    _, images, intrinsics, poses = scene_and_views
+    config = tiny_config(iterations=12, occupancy_warmup=4, occupancy_interval=4)
+    views = np.zeros((1, 2))
+    expected = render_views(fit_scene(images, intrinsics, poses, config), views, config)
+    with mode():
+        colour, height = render_views(fit_scene(images, intrinsics, poses, config), views, config)
+    assert np.array_equal(colour, expected[0]) and np.array_equal(height, expected[1])

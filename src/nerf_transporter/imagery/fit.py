@@ -249,9 +249,17 @@ def fit_scene(
 ) -> FittedScene:
     """Fit a radiance field to N posed RGB images (uint8 [N, H, W, 3], OpenCV cameras).
 
+    Fits with gradients whatever the caller's grad mode: `trainer.test` runs under
+    `torch.inference_mode()`, and closed-loop test episodes fit their NeRFs inside it.
     Raises NonFiniteLossError (and returns nothing) if the loss stops being finite.
     """
-    config = config or ImageryConfig()
+    with torch.inference_mode(False), torch.enable_grad():
+        return _fit_scene(images, intrinsics, cam_to_world, config or ImageryConfig())
+
+
+def _fit_scene(
+    images: np.ndarray, intrinsics: np.ndarray, cam_to_world: np.ndarray, config: ImageryConfig
+) -> FittedScene:
     images, intrinsics, cam_to_world = (np.asarray(a) for a in (images, intrinsics, cam_to_world))
     _check_inputs(images, intrinsics, cam_to_world)
     if config.threads:
