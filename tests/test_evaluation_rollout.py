@@ -63,6 +63,11 @@ def test_an_episode_whose_simulation_raises_is_a_failure_and_the_run_goes_on():
     assert factory.built == 2
     assert after.seed == 3 and "raised" not in (after.failure or "")
     assert set(after.timings) >= {"reset_s", "act_s", "step_s", "total_s"}
+    # a policy that misses says by how much
+    assert after.failure == "task not achieved"
+    assert set(after.pose_error) == {"position_error", "tilt_error", "yaw_error"}
+    assert after.failure_text().startswith("the object did not end at the target pose (position")
+    assert after.to_json()["pose_error"] == after.pose_error
 
 
 def test_a_policy_that_raises_is_a_failure_with_its_reason():

@@ -114,7 +114,7 @@ class SuccessRateCallback(Callback):
             "eval/success_rate_high": high,
             "eval/episodes": float(episodes),
         }
-        failures = [f"{r.seed}: {r.failure}" for r in results if r.failure is not None]
+        failures = [f"{r.seed}: {r.failure_text()}" for r in results if r.failure is not None]
         rank_zero_info(
             f"step {trainer.global_step}: validation success {successes}/{episodes} "
             f"({100 * rate:.0f}%, 95% CI {100 * low:.0f}-{100 * high:.0f}%)"

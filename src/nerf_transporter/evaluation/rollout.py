@@ -22,13 +22,15 @@ import torch
 from tqdm.auto import tqdm
 
 from nerf_transporter import geometry
-from nerf_transporter.data.generate import IMAGERY_RUNTIME_FIELDS
+from nerf_transporter.data.generate import IMAGERY_RUNTIME_FIELDS, pose_error_text
 from nerf_transporter.data.heightmap import heightmap_from_rgbd
 from nerf_transporter.evaluation.cache import ImageryCache, config_hash
 
 log = logging.getLogger(__name__)
 
 INPUT_KINDS = ("imagery", "heightmap", "state")
+POSE_ERROR_KEYS = ("position_error", "tilt_error", "yaw_error")  # metres, radians, radians
+NOT_ACHIEVED = "task not achieved"
 DEFAULT_CACHE_DIR = "data/imagery-cache"
 IMAGERY_KINDS = ("nerf", "oracle")
 
@@ -145,7 +147,9 @@ def _imagery_config(config: Any, pixel_size: float) -> Any:
 
 @dataclass
 class EpisodeResult:
-    """Outcome of one episode. `frames`: top-down colour before and after the action, if recorded."""
+    """Outcome of one episode. `pose_error`: how far the object ended from its target (the
+    task's errors: position in metres, tilt and yaw in radians); `frames`: top-down colour before
+    and after the action, if recorded."""
 
     seed: int
     success: bool
@@ -153,12 +157,19 @@ class EpisodeResult:
     action: dict[str, list[float]] | None = None
     timings: dict[str, float] = field(default_factory=dict)
     imagery_cached: bool | None = None
+    pose_error: dict[str, float] = field(default_factory=dict)
     frames: np.ndarray | None = None
 
     def to_json(self) -> dict:
         record = dataclasses.asdict(self)
         record.pop("frames")
         return record
+
+    def failure_text(self) -> str | None:
+        """The failure reason, with the pose errors where the task was simply not achieved."""
+        if self.failure == NOT_ACHIEVED and self.pose_error:
+            return pose_error_text(self.pose_error)
+        return self.failure
 
 
 def _action_record(action: dict) -> dict[str, list[float]]:
@@ -347,7 +358,7 @@ class Evaluator:
             )
         timings["total_s"] = time.perf_counter() - start
         success = bool(info["success"])
-        failure = None if success else (info.get("failure") or "task not achieved")
+        failure = None if success else (info.get("failure") or NOT_ACHIEVED)
         return EpisodeResult(
             seed=seed,
             success=success,
@@ -355,6 +366,7 @@ class Evaluator:
             action=action_record,
             timings=timings,
             imagery_cached=cached,
+            pose_error={k: float(info[k]) for k in POSE_ERROR_KEYS if info.get(k) is not None},
             frames=np.stack(frames) if frames else None,
         )
 
