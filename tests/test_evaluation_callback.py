@@ -118,6 +118,7 @@ def test_lightning_test_writes_results_beside_the_checkpoint(fitted, tmp_path, c
     # tested in another setting than trained in: the file says which
     results = json.loads((Path(ckpt).parent / "results-challenging.json").read_text())
     assert results["method"] == "tiny" and results["split"] == "test"
+    assert results["imagery"] is None  # a state method builds no imagery
     assert (results["task"], results["setting"]) == ("block-insertion", "challenging")
     assert results["checkpoint"] == ckpt and results["global_step"] == 2
     assert [episode["seed"] for episode in results["episode_results"]] == [1, 3]

@@ -21,7 +21,6 @@ import torch
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
 from nerf_transporter.evaluation.testing import (
     checkpoint_step,
-    method_name,
     results_record,
     write_json,
 )
@@ -94,7 +93,7 @@ def evaluate_checkpoints(
             results = evaluator.run(model, seeds, progress=progress, desc=path.name)
             record = results_record(
                 [result.to_json() for result in results],
-                method=method_name(model),
+                method=model,
                 spec=spec,
                 split=split,
                 checkpoint=str(path),

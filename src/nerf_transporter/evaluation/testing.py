@@ -72,22 +72,26 @@ def write_json(path: str | os.PathLike, payload: dict) -> Path:
 def results_record(
     results: list[dict[str, Any]],
     *,
-    method: str,
+    method: torch.nn.Module,
     spec: EvaluationSpec,
     split: str,
     checkpoint: str | None,
     global_step: int | None,
     wall_s: float,
 ) -> dict[str, Any]:
-    """The results.json payload: identification, summary figures and every episode's record."""
+    """The results.json payload: identification, summary figures and every episode's record.
+
+    "imagery" is how the views were built for an imagery method (nerf, oracle), None for the
+    methods that see the RGB-D heightmap or the state.
+    """
     results = sorted(results, key=lambda result: result["seed"])
     successes = sum(result["success"] for result in results)
     return {
-        "method": method,
+        "method": method_name(method),
         "task": spec.task,
         "setting": spec.setting,
         "split": split,
-        "imagery": spec.imagery,
+        "imagery": spec.imagery if getattr(method, "input_kind", None) == "imagery" else None,
         "checkpoint": checkpoint,
         "global_step": global_step,
         **summarize(successes, len(results), [result["failure"] for result in results]),
@@ -128,7 +132,7 @@ class ClosedLoopTest:
         checkpoint = self.trainer.ckpt_path
         record = results_record(
             results,
-            method=method_name(self),
+            method=self,
             spec=evaluator.spec,
             split="test",
             checkpoint=str(checkpoint) if checkpoint else None,
