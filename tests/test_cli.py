@@ -1,6 +1,11 @@
+import functools
+import http.server
+import json
 import os
 import subprocess
 import sys
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import lightning.pytorch as pl
@@ -10,7 +15,7 @@ import torch
 from test_methods import SIZE, synthetic_batch, synthetic_observation
 from torch.utils.data import DataLoader
 
-from nerf_transporter.cli import build_cli, main
+from nerf_transporter.cli import build_cli, claim_version, lightning_main, main
 from nerf_transporter.methods import METHODS, Mira, TransporterSE2
 
 REPO = Path(__file__).resolve().parents[1]
@@ -183,3 +188,98 @@ def test_ddp_two_cpu_processes(tmp_path):
     assert result.returncode == 0, result.stderr[-3000:]
     run_dir = tmp_path / "logs" / "block-insertion" / "mira" / "version_0"
     assert list((run_dir / "checkpoints").glob("*.ckpt"))
+
+
+def test_runs_started_together_claim_distinct_folders(tmp_path):
+    runs = tmp_path / "logs" / "block-insertion" / "mira"
+    start = threading.Barrier(8)
+
+    def claim(_):
+        start.wait()
+        return claim_version(runs)
+
+    with ThreadPoolExecutor(8) as pool:
+        versions = list(pool.map(claim, range(8)))
+    assert sorted(versions) == list(range(8))
+
+
+def fit_two_steps(tmp_path) -> Path:
+    """A 2-step tiny mira run; returns its folder (logs/block-insertion/mira/version_0)."""
+    config = tiny_config(tmp_path / "tiny.yaml", batch_size=2)
+    build_cli(["fit", "--config", str(config)])
+    return tmp_path / "logs" / "block-insertion" / "mira" / "version_0"
+
+
+def test_ckpt_path_last_resumes_the_latest_run_in_its_folder(tmp_path):
+    run = fit_two_steps(tmp_path)
+    config_text = (run / "config.yaml").read_text()
+    config = tmp_path / "tiny.yaml"
+    cli = build_cli(
+        ["fit", "--config", str(config), "--trainer.max_steps", "4", "--ckpt_path", "last"]
+    )
+    assert cli.trainer.global_step == 4  # continued from step 2
+    assert Path(cli.trainer.log_dir) == Path("logs/block-insertion/mira/version_0")
+    assert not run.with_name("version_1").exists()
+    # the run's config stays; the resumed one is saved beside it
+    assert (run / "config.yaml").read_text() == config_text
+    assert "max_steps: 4" in (run / "config-fit.yaml").read_text()
+
+
+def test_ckpt_path_last_without_a_run_is_a_named_error(tmp_path, capsys):
+    config = tiny_config(tmp_path / "tiny.yaml")
+    assert lightning_main(["fit", "--config", str(config), "--ckpt_path", "last"]) == 2
+    assert "no earlier run to resume" in capsys.readouterr().err
+    assert not list(Path("logs").rglob("events.out.tfevents.*"))
+
+
+def test_lightning_test_with_erred_episodes_exits_non_zero_and_logs_into_the_run(tmp_path, capsys):
+    run = fit_two_steps(tmp_path)
+    (checkpoint,) = (run / "checkpoints").glob("*.ckpt")
+    Path("data").mkdir()
+    Path("data/imagery-cache").write_text("a file where the imagery cache folder should be")
+    test_config = tmp_path / "test.yaml"
+    data_args = {**SIZE, "task": "block-insertion", "imagery": "oracle", "test_episodes": 2}
+    data_args.pop("crop_size"), data_args.pop("width")
+    test_config.write_text(
+        f"""trainer: {{accelerator: cpu, devices: 1, enable_progress_bar: false}}
+model: {{class_path: Mira, init_args: {SIZE}}}
+data:
+  class_path: nerf_transporter.data.datamodule.RavensDataModule
+  init_args: {data_args}
+"""
+    )
+    argv = ["test", "--config", str(test_config), "--ckpt_path", str(checkpoint)]
+    assert lightning_main(argv) == 1
+    err = capsys.readouterr().err
+    assert "2 episodes erred (seeds 1, 3)" in err and "NotADirectoryError" in err
+    results = json.loads((run / "checkpoints" / f"results-{checkpoint.stem}.json").read_text())
+    assert (results["episodes"], results["errors"], results["erred_seeds"]) == (0, 2, [1, 3])
+    assert [e["outcome"] for e in results["episode_results"]] == ["error", "error"]
+    # logged into the checkpoint's run, not a new version; the fit's config is kept
+    assert sorted(path.name for path in run.parent.iterdir()) == ["version_0"]
+    assert (run / "config-test.yaml").is_file()
+    assert "Synthetic" in (run / "config.yaml").read_text()
+
+
+class Exploit:
+    """Unpickling this runs code (it would create the file `exploited`)."""
+
+    def __reduce__(self):
+        return (Path.touch, (Path.cwd() / "exploited",))
+
+
+def test_a_pickled_payload_behind_a_url_is_refused(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch-home"))
+    served = tmp_path / "served"
+    served.mkdir()
+    torch.save({"state_dict": {}, "payload": Exploit()}, served / "evil.ckpt")
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(served))
+    with http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler) as server:
+        threading.Thread(target=server.serve_forever, daemon=True).start()
+        url = f"http://127.0.0.1:{server.server_address[1]}/evil.ckpt"
+        config = tiny_config(tmp_path / "tiny.yaml")
+        code = lightning_main(["test", "--config", str(config), "--ckpt_path", url])
+        server.shutdown()
+    assert code == 2
+    assert "refused to load the checkpoint" in capsys.readouterr().err
+    assert not (tmp_path / "exploited").exists()

@@ -1,6 +1,7 @@
 """Closed loop inside Lightning: SuccessRateCallback during fit, and `trainer.test` on a checkpoint."""
 
 import json
+import math
 from pathlib import Path
 
 import lightning.pytorch as pl
@@ -13,9 +14,11 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from torch.utils.data import DataLoader
 
 from nerf_transporter.data.generate import GenerationConfig
+from nerf_transporter.evaluation import callback as callback_module
 from nerf_transporter.evaluation.callback import SuccessRateCallback
 from nerf_transporter.evaluation.metrics import wilson_interval
 from nerf_transporter.evaluation.report import main as report_main
+from nerf_transporter.evaluation.rollout import EpisodeResult
 from nerf_transporter.evaluation.testing import ClosedLoopTest, seed_loader
 
 UPRIGHT = np.array([0.0, 0.0, 0.0, 1.0])
@@ -115,8 +118,10 @@ def test_lightning_test_writes_results_beside_the_checkpoint(fitted, tmp_path, c
     ckpt = checkpoint.best_model_path
     tester = pl.Trainer(logger=False, enable_progress_bar=False, accelerator="cpu")
     metrics = tester.test(model, datamodule=TinyData(), ckpt_path=ckpt)[0]
-    # tested in another setting than trained in: the file says which
-    results = json.loads((Path(ckpt).parent / "results-challenging.json").read_text())
+    # one file per checkpoint; tested in another setting than trained in: the name says which
+    results = json.loads(
+        (Path(ckpt).parent / f"results-{Path(ckpt).stem}-challenging.json").read_text()
+    )
     assert results["method"] == "tiny" and results["split"] == "test"
     assert results["imagery"] is None  # a state method builds no imagery
     assert (results["task"], results["setting"]) == ("block-insertion", "challenging")
@@ -126,6 +131,8 @@ def test_lightning_test_writes_results_beside_the_checkpoint(fitted, tmp_path, c
     failures = [e["failure"] for e in results["episode_results"] if not e["success"]]
     assert results["episodes"] == 2 and results["successes"] == successes
     assert sum(results["failures"].values()) == len(failures) and all(failures)
+    assert results["errors"] == 0 and results["erred_seeds"] == []
+    assert len(results["world"]) == 16  # the world fingerprint the episodes were played in
     assert (results["ci_low"], results["ci_high"]) == pytest.approx(wilson_interval(successes, 2))
     assert metrics["test/episodes"] == 2
     assert metrics["test/success_rate"] == pytest.approx(successes / 2)
@@ -134,3 +141,68 @@ def test_lightning_test_writes_results_beside_the_checkpoint(fitted, tmp_path, c
     assert report_main([str(tmp_path)]) == 0
     table = capsys.readouterr().out
     assert "| tiny |" in table and "block-insertion Challenging" in table
+
+
+def test_no_results_file_is_replaced(fitted, tmp_path):
+    trainer, model, checkpoint = fitted
+    first = Path(checkpoint.best_model_path)
+    second = first.with_name("step4-success0.00.ckpt")
+    second.write_bytes(first.read_bytes())
+    for ckpt in (first, second, first):
+        tester = pl.Trainer(logger=False, enable_progress_bar=False, accelerator="cpu")
+        tester.test(model, datamodule=TinyData(), ckpt_path=str(ckpt))
+    names = sorted(path.name for path in first.parent.glob("results*.json"))
+    assert names == [
+        f"results-{first.stem}-challenging-2.json",
+        f"results-{first.stem}-challenging.json",
+        f"results-{second.stem}-challenging.json",
+    ]
+
+
+class ErringEvaluator:
+    """Stands in for the Evaluator: the first seed errs, the other episodes succeed."""
+
+    def __init__(self, spec):
+        self.spec = spec
+
+    def run(self, method, seeds, **options):
+        return [
+            EpisodeResult(
+                seed=seed,
+                success=index > 0,
+                failure=None,
+                error=None if index > 0 else "observation raised OSError: disk full",
+            )
+            for index, seed in enumerate(seeds)
+        ]
+
+    def close(self):
+        pass
+
+
+def test_a_validation_round_with_errors_is_not_used_to_select_checkpoints(tmp_path, monkeypatch):
+    monkeypatch.setattr(callback_module, "Evaluator", ErringEvaluator)
+    callback = SuccessRateCallback(every_n_steps=2, episodes=3, cache_dir=None)
+    checkpoint = ModelCheckpoint(
+        dirpath=tmp_path / "checkpoints",
+        monitor="eval/success_rate",
+        mode="max",
+        every_n_train_steps=2,
+        save_top_k=-1,
+    )
+    trainer = pl.Trainer(
+        max_steps=2,
+        logger=TensorBoardLogger(tmp_path, name="logs"),
+        callbacks=[callback, checkpoint],
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        accelerator="cpu",
+    )
+    trainer.fit(TinyStateMethod(), datamodule=TinyData())
+    # 2 of the 3 validation seeds ran and succeeded; one erred
+    events = EventAccumulator(trainer.logger.log_dir).Reload()
+    assert events.Scalars("eval/errors")[0].value == 1.0
+    assert events.Scalars("eval/episodes")[0].value == 2.0
+    assert events.Scalars("eval/success_rate")[0].value == 1.0
+    # ... but ModelCheckpoint saw no usable rate for this round
+    assert math.isnan(trainer.callback_metrics["eval/success_rate"].item())

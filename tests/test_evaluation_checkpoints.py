@@ -1,6 +1,8 @@
 """`nerf-transporter evaluate-checkpoints`: every checkpoint of a run, closed loop on validation seeds."""
 
 import json
+import logging
+from pathlib import Path
 
 import torch
 from lightning.pytorch.cli import LightningCLI
@@ -29,7 +31,17 @@ class StateBatches(torch.utils.data.Dataset):
         return {"state": self.state[index], "pick": pick, "place": place}
 
 
-def test_every_checkpoint_of_a_run_is_evaluated_and_the_best_named(tmp_path, capsys):
+class Exploit:
+    """Unpickling this runs code (it would create the file `exploited`)."""
+
+    def __reduce__(self):
+        return (Path.touch, (Path.cwd() / "exploited",))
+
+
+def test_every_checkpoint_of_a_run_is_evaluated_and_the_best_named(
+    tmp_path, capsys, caplog, monkeypatch
+):
+    monkeypatch.chdir(tmp_path)
     run = tmp_path / "logs" / "block-insertion" / "gt_state_mlp" / "version_0"
     state_dim = make_env("block-insertion").task.state_dim()
     cli = LightningCLI(
@@ -51,9 +63,16 @@ def test_every_checkpoint_of_a_run_is_evaluated_and_the_best_named(tmp_path, cap
     later = torch.load(run / "checkpoints" / "step2.ckpt", weights_only=True)
     later["global_step"] = 4
     torch.save(later, run / "checkpoints" / "step4.ckpt")
+    (run / "checkpoints" / "truncated.ckpt").write_bytes(b"PK\x03\x04 cut short")
+    torch.save({"payload": Exploit()}, run / "checkpoints" / "pickled.ckpt")
 
     argv = [str(run), "--split", "validation", "--episodes", "2", "--cache-dir", str(tmp_path)]
-    assert cli_main(["evaluate-checkpoints", *argv, "--json"]) == 0
+    with caplog.at_level(logging.WARNING):
+        assert cli_main(["evaluate-checkpoints", *argv, "--json"]) == 0
+    # the unreadable and the unsafe checkpoints were skipped, named, and never unpickled
+    assert "skipping unreadable checkpoint" in caplog.text
+    assert "truncated.ckpt" in caplog.text and "pickled.ckpt" in caplog.text
+    assert not (tmp_path / "exploited").exists()
     out = capsys.readouterr().out
     summary = json.loads(out.strip().splitlines()[-1])
     assert [c["global_step"] for c in summary["checkpoints"]] == [2, 4]
@@ -65,8 +84,11 @@ def test_every_checkpoint_of_a_run_is_evaluated_and_the_best_named(tmp_path, cap
         assert record["method"] == "gt_state_mlp" and record["split"] == "validation"
         seeds = [episode["seed"] for episode in record["episode_results"]]
         assert seeds == [1_000_000, 1_000_001]
+    # evaluating again adds files beside the first ones: nothing is replaced
+    assert cli_main(["evaluate-checkpoints", *argv]) == 0
+    assert (run / "evaluation" / "step2-validation-normal-2.json").is_file()
 
 
 def test_a_run_without_checkpoints_is_an_error(tmp_path, capsys):
     assert cli_main(["evaluate-checkpoints", str(tmp_path)]) == 1
-    assert "no .ckpt files" in capsys.readouterr().err
+    assert "no readable .ckpt files" in capsys.readouterr().err

@@ -51,8 +51,28 @@ def test_success_rate_metric_accumulates_and_resets():
         assert math.isnan(metric.compute().item())
 
 
-def test_summarize_counts_failure_reasons():
-    summary = summarize(1, 3, ["unreachable", None, "unreachable"])
+def test_summarize_counts_failure_reasons_and_keeps_errors_out_of_the_rate():
+    def record(seed, outcome, reason=None):
+        return {
+            "seed": seed,
+            "outcome": outcome,
+            "success": outcome == "success",
+            "failure": reason if outcome == "failure" else None,
+            "error": reason if outcome == "error" else None,
+        }
+
+    summary = summarize(
+        [
+            record(1, "failure", "unreachable"),
+            record(3, "success"),
+            record(5, "error", "observation raised OSError: disk full"),
+            record(7, "failure", "unreachable"),
+        ]
+    )
+    # the erred episode is not a failure of the policy: 1 success out of the 3 that ran
+    assert (summary["episodes"], summary["successes"]) == (3, 1)
     assert summary["success_rate"] == pytest.approx(1 / 3)
     assert summary["failures"] == {"unreachable": 2}
     assert summary["ci_low"] < 1 / 3 < summary["ci_high"]
+    assert summary["errors"] == 1 and summary["erred_seeds"] == [5]
+    assert summary["error_reasons"] == {"observation raised OSError: disk full": 1}

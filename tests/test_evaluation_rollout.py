@@ -1,9 +1,11 @@
-"""One closed-loop episode: failures are recorded, never raised; imagery is cached per seed."""
+"""One closed-loop episode: failures and errors are recorded apart, never raised; imagery is cached
+per seed, and a damaged cache entry is rebuilt."""
 
 import numpy as np
 import pytest
 import torch
 
+from nerf_transporter.evaluation import rollout
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
 from nerf_transporter.sim import make_env
 
@@ -56,8 +58,12 @@ def test_an_episode_whose_simulation_raises_is_a_failure_and_the_run_goes_on():
     with Evaluator(EvaluationSpec(task="block-insertion", imagery="oracle"), factory) as evaluator:
         results = evaluator.run(policy, [1, 3])
     crashed, after = results
-    assert crashed.seed == 1 and not crashed.success
-    assert crashed.failure == "step raised RuntimeError: Not connected to physics server."
+    assert crashed.seed == 1 and not crashed.success and crashed.outcome == "failure"
+    assert crashed.failure == (
+        "simulator fault during the robot's motion "
+        "(step raised RuntimeError: Not connected to physics server.)"
+    )
+    assert crashed.error is None
     assert crashed.action is not None and len(crashed.action["pick"]) == 7
     # the broken environment was replaced and the next episode ran to its judgement
     assert factory.built == 2
@@ -70,13 +76,14 @@ def test_an_episode_whose_simulation_raises_is_a_failure_and_the_run_goes_on():
     assert after.to_json()["pose_error"] == after.pose_error
 
 
-def test_a_policy_that_raises_is_a_failure_with_its_reason():
+def test_a_policy_that_raises_is_an_error_not_a_robot_failure():
     policy = FixedPolicy(error=ValueError("no valid pick pixel"))
     policy.train()
     with Evaluator(EvaluationSpec(task="block-insertion", imagery="oracle")) as evaluator:
         result = evaluator.run_episode(policy, 1)
-    assert not result.success
-    assert result.failure == "act raised ValueError: no valid pick pixel"
+    assert not result.success and result.outcome == "error" and result.failure is None
+    assert result.error == "act raised ValueError: no valid pick pixel"
+    assert result.to_json()["outcome"] == "error"
     assert result.action is None
     assert policy.modes == [False] and policy.training  # acted in eval mode, training mode restored
 
@@ -106,3 +113,43 @@ def test_imagery_is_cached_by_seed_and_reused(tmp_path):
     # a different imagery config is a different cache entry
     other = EvaluationSpec(task="block-insertion", imagery="oracle", pixel_size=0.025)
     assert other.imagery_key() != spec.imagery_key()
+
+
+def oracle_imagery_spec(cache_dir):
+    return EvaluationSpec(
+        task="block-insertion", imagery="oracle", pixel_size=0.0125, cache_dir=str(cache_dir)
+    )
+
+
+def test_a_corrupt_cache_entry_is_deleted_rebuilt_and_the_episode_counts(tmp_path, caplog):
+    policy = FixedPolicy(input_kind="imagery")
+    with Evaluator(oracle_imagery_spec(tmp_path)) as evaluator:
+        first = evaluator.run_episode(policy, 1)
+        (entry,) = tmp_path.rglob("*.npz")
+        entry.write_bytes(entry.read_bytes()[:200])  # truncated: a BadZipFile on load
+        again = evaluator.run_episode(policy, 1)
+    assert again.error is None and again.outcome == first.outcome
+    assert again.imagery_cached is False  # rebuilt, not read
+    assert "corrupt imagery cache file" in caplog.text
+    fresh, rebuilt = (obs["imagery"] for obs in policy.observations)
+    np.testing.assert_array_equal(fresh["colour"], rebuilt["colour"])
+    with np.load(entry) as repaired:  # the entry was written again, whole
+        np.testing.assert_array_equal(repaired["height"], fresh["height"])
+
+
+def test_an_unwritable_cache_is_an_error_not_a_failure(tmp_path):
+    blocker = tmp_path / "cache"
+    blocker.write_text("a file where the cache folder should be")
+    policy = FixedPolicy(input_kind="imagery")
+    with Evaluator(oracle_imagery_spec(blocker)) as evaluator:
+        result = evaluator.run_episode(policy, 1)
+    assert result.outcome == "error" and result.failure is None
+    assert result.error.startswith("observation raised NotADirectoryError")
+    assert policy.observations == []  # the policy never acted on it
+
+
+def test_the_cache_key_carries_the_world_fingerprint(monkeypatch):
+    spec = oracle_imagery_spec("unused")
+    before = spec.imagery_key()
+    monkeypatch.setattr(rollout, "world_fingerprint", lambda: "another-world")
+    assert spec.imagery_key() != before

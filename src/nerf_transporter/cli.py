@@ -4,7 +4,11 @@ the others (oracle, generate, dataset-info, report, ...) are tools around it."""
 from __future__ import annotations
 
 import importlib
+import itertools
+import pickle
+import re
 import sys
+from pathlib import Path
 from typing import Any
 
 # sub-command -> ("module:function", one-line help). Each function takes argv and returns an exit code.
@@ -25,6 +29,9 @@ TOOLS: dict[str, tuple[str, str]] = {
     "evaluate-checkpoints": ("nerf_transporter.evaluation.checkpoints:main", "rank checkpoints"),
 }
 
+
+LOG_ROOT = Path("logs")
+VERSION_FOLDER = re.compile(r"version_(\d+)")
 
 # Sub-commands handed to LightningCLI (also what the `lightning` console script runs).
 LIGHTNING_COMMANDS: dict[str, str] = {
@@ -70,26 +77,118 @@ def run_name(model: Any, datamodule: Any) -> str:
     return f"{task}/{getattr(model, 'name', type(model).__name__.lower())}"
 
 
+def _version(path: Path) -> int | None:
+    match = VERSION_FOLDER.fullmatch(path.name)
+    return int(match.group(1)) if match else None
+
+
+def claim_version(runs: Path) -> int:
+    """Create and return the next free `version_N` under `runs`. mkdir is atomic, so two runs
+    started together never share a folder (one of them takes the next number)."""
+    runs.mkdir(parents=True, exist_ok=True)
+    taken = [number for path in runs.iterdir() if (number := _version(path)) is not None]
+    version = max(taken, default=-1) + 1
+    while True:
+        try:
+            (runs / f"version_{version}").mkdir()
+            return version
+        except FileExistsError:
+            version += 1
+
+
+class NoRunToResumeError(FileNotFoundError):
+    """`--ckpt_path last` where the task and method have no run with a last checkpoint."""
+
+
+def latest_checkpoint(runs: Path) -> Path:
+    """The checkpoint to resume from: in the highest-numbered run under `runs` that has any,
+    `last.ckpt`, else its most recently written checkpoint."""
+    found = []
+    for path in runs.iterdir() if runs.is_dir() else []:
+        number = _version(path)
+        checkpoints = sorted((path / "checkpoints").glob("*.ckpt"), key=lambda p: p.stat().st_mtime)
+        if number is not None and checkpoints:
+            last = path / "checkpoints" / "last.ckpt"
+            found.append((number, last if last.is_file() else checkpoints[-1]))
+    if not found:
+        raise NoRunToResumeError(
+            f"--ckpt_path last: no earlier run to resume, no checkpoint under {runs}/version_N/"
+            "checkpoints; start a new run without --ckpt_path"
+        )
+    return max(found)[1]
+
+
+def run_folder(checkpoint: str) -> Path | None:
+    """The run folder (`.../version_N`) whose `checkpoints/` holds a local checkpoint, if any."""
+    path = Path(checkpoint)
+    if (
+        path.is_file()
+        and path.parent.name == "checkpoints"
+        and _version(path.parent.parent) is not None
+    ):
+        return path.parent.parent
+    return None
+
+
 def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
     """LightningCLI (omegaconf parser mode): `model` is any `Method`, `data` any LightningDataModule.
 
-    Without an explicit `trainer.logger`, runs log with TensorBoard to `logs/<task>/<method>/version_N`
-    and checkpoints go to `checkpoints/` inside that folder. Returns the `LightningCLI` object.
+    Without an explicit `trainer.logger`, a run logs with TensorBoard to its own
+    `logs/<task>/<method>/version_N` (claimed atomically) with checkpoints in its `checkpoints/`;
+    `fit --ckpt_path last` resumes the latest run of that task and method in its folder, and
+    `test`/`validate`/`predict` of a run's checkpoint log into that run. Configs are saved there
+    without replacing one already present. Checkpoints load with `weights_only=True` unless
+    `--weights_only false` is given. Returns the `LightningCLI` object.
     """
     import lightning.pytorch as pl
-    from lightning.pytorch.cli import LightningCLI
+    from lightning.fabric.utilities.rank_zero import rank_zero_only
+    from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
     from lightning.pytorch.loggers import TensorBoardLogger
 
     from nerf_transporter.methods import Method
 
+    class RunConfigCallback(SaveConfigCallback):
+        """Saves the resolved config in the run folder as `config.yaml`, or, where a resumed fit or
+        a test of the run's checkpoint finds one, as `config-<stage>[-N].yaml` beside it."""
+
+        def setup(self, trainer: pl.Trainer, pl_module: pl.LightningModule, stage: str) -> None:
+            if not self.already_saved:
+                folder = Path(trainer.log_dir or ".")  # a collective call under DDP
+                self.config_filename = free_name(folder, "config", getattr(stage, "value", stage))
+            super().setup(trainer, pl_module, stage)
+
     class NerfTransporterCLI(LightningCLI):
+        def _prepare_subcommand_parser(self, klass: type, subcommand: str, **kwargs: Any) -> Any:
+            parser = super()._prepare_subcommand_parser(klass, subcommand, **kwargs)
+            if "weights_only" in self._subcommand_method_arguments[subcommand]:
+                parser.set_defaults({"weights_only": True})  # never unpickle code from a checkpoint
+            return parser
+
         def instantiate_trainer(self, **kwargs: Any) -> pl.Trainer:
             logger = self._get(self.config_init, "trainer", default={}).get("logger")
             if logger is None or logger is True:
-                kwargs["logger"] = TensorBoardLogger(
-                    save_dir="logs", name=run_name(self.model, self.datamodule)
-                )
+                kwargs["logger"] = self._run_logger()
             return super().instantiate_trainer(**kwargs)
+
+        def _run_logger(self) -> TensorBoardLogger:
+            runs = LOG_ROOT / run_name(self.model, self.datamodule)
+            ckpt_path = self._get(self.config_init, "ckpt_path")
+            folder = None
+            if self.subcommand == "fit" and ckpt_path == "last":
+                checkpoint = latest_checkpoint(runs)
+                self.config_init[self.subcommand]["ckpt_path"] = str(checkpoint)
+                folder = checkpoint.parent.parent
+            elif self.subcommand is not None and ckpt_path:
+                folder = run_folder(str(ckpt_path))
+            if folder is not None:
+                return TensorBoardLogger(save_dir=folder.parent, name="", version=folder.name)
+            # other DDP processes leave the folder to rank 0 (Lightning broadcasts its log_dir);
+            # a CLI built without running (run=False) claims nothing
+            claim = self.subcommand is not None and rank_zero_only.rank == 0
+            version = claim_version(runs) if claim else None
+            return TensorBoardLogger(
+                save_dir=LOG_ROOT, name=str(runs.relative_to(LOG_ROOT)), version=version
+            )
 
     return NerfTransporterCLI(
         Method,
@@ -97,15 +196,46 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
         subclass_mode_model=True,
         subclass_mode_data=True,
         parser_kwargs={"parser_mode": "omegaconf"},
-        save_config_kwargs={"overwrite": True},
+        save_config_callback=RunConfigCallback,
+        save_config_kwargs={"overwrite": False},
         args=args,
         run=run,
     )
 
 
+def free_name(folder: Path, stem: str, stage: str) -> str:
+    """`<stem>.yaml` if free in `folder`, else `<stem>-<stage>.yaml`, `<stem>-<stage>-2.yaml`, ..."""
+    names = itertools.chain(
+        [f"{stem}.yaml", f"{stem}-{stage}.yaml"],
+        (f"{stem}-{stage}-{number}.yaml" for number in itertools.count(2)),
+    )
+    return next(name for name in names if not (folder / name).exists())
+
+
 def lightning_main(args: list[str] | None = None) -> int:
-    """The `lightning` console script: `lightning fit|validate|test|predict ...`."""
-    build_cli(args)
+    """The `lightning` console script: `lightning fit|validate|test|predict ...`.
+
+    Exits 1 when a closed-loop test had erred episodes (their seeds are listed); 2 when
+    `--ckpt_path last` finds no run to resume or a checkpoint holds more than weights."""
+    from nerf_transporter.evaluation.testing import erred_seeds_line
+
+    try:
+        cli = build_cli(args)
+    except NoRunToResumeError as error:
+        print(f"lightning: {error}", file=sys.stderr)
+        return 2
+    except pickle.UnpicklingError as error:
+        print(
+            "lightning: refused to load the checkpoint: it holds objects other than tensors and "
+            "plain values, which could run code (loaded with weights_only=True; pass "
+            f"--weights_only false only for a checkpoint you trust):\n  {error}",
+            file=sys.stderr,
+        )
+        return 2
+    record = getattr(cli.model, "test_record", None)
+    if record is not None and record["errors"]:
+        print(f"lightning test: {erred_seeds_line(record)}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -2,20 +2,24 @@
 
 Re-evaluating a checkpoint then reuses the imagery of every seed instead of refitting its NeRF.
 Files are npz (no pickle) written to a temporary name and renamed, so an interrupted write never
-leaves a half file behind.
+leaves a half file behind; a file damaged afterwards is deleted with a warning and rebuilt.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import tempfile
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 IMAGERY_KEYS = ("colour", "height", "views")
+log = logging.getLogger(__name__)
 
 
 def config_hash(config: dict) -> str:
@@ -44,7 +48,8 @@ class ImageryCache:
         return self.root / f"{task}-{setting}" / f"{seed}-{key}.npz"
 
     def load(self, task: str, setting: str, seed: int, key: str) -> dict[str, np.ndarray] | None:
-        """The cached imagery, or None when absent; a corrupt file is reported, not silently used."""
+        """The cached imagery, or None when absent or corrupt (a corrupt file is deleted, with a
+        warning, so that the caller rebuilds it)."""
         path = self.path(task, setting, seed, key)
         if not path.exists():
             return None
@@ -54,10 +59,10 @@ class ImageryCache:
                 if missing:
                     raise ValueError(f"missing arrays {missing}")
                 return {name: data[name] for name in IMAGERY_KEYS}
-        except (OSError, ValueError) as error:
-            raise ValueError(
-                f"corrupt imagery cache file {path}: {error}; delete it to rebuild"
-            ) from error
+        except (zipfile.BadZipFile, zlib.error, EOFError, ValueError) as error:
+            log.warning("corrupt imagery cache file %s (%s): deleted, rebuilding it", path, error)
+            path.unlink(missing_ok=True)
+            return None
 
     def save(
         self, task: str, setting: str, seed: int, key: str, imagery: dict[str, np.ndarray]

@@ -7,15 +7,22 @@ of fit it runs `episodes` validation episodes (`splits.split_seed("validation", 
 framed green on success and red on failure). `ModelCheckpoint(monitor="eval/success_rate")` with the
 same `every_n_train_steps` keeps the checkpoints with the best validation success (the Transporter
 authors' protocol). Under DDP the seeds are shared out among the processes and the counts summed.
+
+Episodes that erred (imagery cache I/O, the imagery fit, ...: not the robot's doing) are left out of
+the rate and logged as `eval/errors`; a round with any error hands ModelCheckpoint a NaN success rate,
+which ranks below every real one, so checkpoint selection ignores that round.
 """
 
 from __future__ import annotations
+
+import math
 
 import lightning.pytorch as pl
 import numpy as np
 from lightning.pytorch.callbacks import Callback
 from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_info
+from torchmetrics.aggregation import SumMetric
 
 from nerf_transporter.evaluation.metrics import SuccessRate, wilson_interval
 from nerf_transporter.evaluation.rollout import (
@@ -76,6 +83,7 @@ class SuccessRateCallback(Callback):
         self.cache_dir = cache_dir
         self.strip_episodes = strip_episodes
         self.metric = SuccessRate()
+        self.error_count = SumMetric()  # erred episodes, summed over DDP processes
         self._evaluator: Evaluator | None = None
         self._last_step: int | None = None
 
@@ -104,21 +112,31 @@ class SuccessRateCallback(Callback):
         )
         self.metric = self.metric.to(pl_module.device)
         self.metric.reset()
-        self.metric.update([result.success for result in results])
+        self.metric.update([result.success for result in results if result.error is None])
+        self.error_count = self.error_count.to(pl_module.device)
+        self.error_count.reset()
+        self.error_count.update(float(sum(result.error is not None for result in results)))
         rate = float(self.metric.compute())
         successes, episodes = self.metric.counts()
+        errors = int(self.error_count.compute())
         low, high = wilson_interval(successes, episodes)
         figures = {
             "eval/success_rate": rate,
             "eval/success_rate_low": low,
             "eval/success_rate_high": high,
             "eval/episodes": float(episodes),
+            "eval/errors": float(errors),
         }
-        failures = [f"{r.seed}: {r.failure_text()}" for r in results if r.failure is not None]
+        misses = [f"{r.seed}: {r.failure_text()}" for r in results if not r.success]
         rank_zero_info(
             f"step {trainer.global_step}: validation success {successes}/{episodes} "
             f"({100 * rate:.0f}%, 95% CI {100 * low:.0f}-{100 * high:.0f}%)"
-            + "".join(f"\n  seed {line}" for line in failures)
+            + (
+                f", {errors} erred episodes not counted: this round is not used to select checkpoints"
+                if errors
+                else ""
+            )
+            + "".join(f"\n  seed {line}" for line in misses)
         )
         self._log(trainer, figures, rollout_strip(results))
         self._last_step = trainer.global_step
@@ -153,6 +171,8 @@ class SuccessRateCallback(Callback):
         if step == self._last_step or not (step % self.every_n_steps == 0 or last):
             return
         figures = self.evaluate(trainer, pl_module)
+        if figures["eval/errors"]:
+            figures["eval/success_rate"] = math.nan  # ModelCheckpoint ranks NaN below every rate
         # into trainer.callback_metrics (ModelCheckpoint's monitor, progress bar); loggers got them
         for name, value in figures.items():
             pl_module.log(name, value, logger=False, prog_bar=name == "eval/success_rate")

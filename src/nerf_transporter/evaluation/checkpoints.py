@@ -2,37 +2,48 @@
 
 Checkpoint selection as the Transporter authors did it: save checkpoints at fixed iterations, run every
 one of them closed loop on the validation seeds, and test the best. Each checkpoint's figures go to
-`<run dir>/evaluation/<checkpoint>-<split>-<setting>.json`; the command prints a table and the
-`lightning test` command for the best checkpoint. Models and DataModules are rebuilt from the
-hyper-parameters inside the checkpoints (LightningCLI stores the method's class path there), and
-checkpoints are read with `weights_only=True`.
+`<run dir>/evaluation/<checkpoint>-<split>-<setting>.json` (`-2`, `-3`, ... when evaluated again:
+nothing is replaced); the command prints a table and the `lightning test` command for the best
+checkpoint, chosen among the evaluations without erred episodes. Models and DataModules are rebuilt
+from the hyper-parameters inside the checkpoints (LightningCLI stores the method's class path
+there), and checkpoints are read with `weights_only=True`; an unreadable checkpoint is skipped with
+a warning.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 import time
 from pathlib import Path
 
 import torch
 
+from nerf_transporter.evaluation.report import cell
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
 from nerf_transporter.evaluation.testing import (
     checkpoint_step,
     results_record,
-    write_json,
+    write_new_json,
 )
 from nerf_transporter.splits import split_seed
 
+log = logging.getLogger(__name__)
+
 
 def checkpoint_steps(run_dir: Path) -> list[tuple[int, Path]]:
-    """(global step, path) of every checkpoint under `run_dir`, by step; a copy of a step
-    (`last.ckpt`) is left out."""
+    """(global step, path) of every readable checkpoint under `run_dir`, by step; a copy of a step
+    (`last.ckpt`) is left out, an unreadable file is skipped with a warning."""
     by_step: dict[int, Path] = {}
     for path in sorted(run_dir.rglob("*.ckpt"), key=lambda p: (p.name == "last.ckpt", str(p))):
-        by_step.setdefault(checkpoint_step(path), path)
+        try:
+            step = checkpoint_step(path)
+        except Exception as error:  # truncated, not a checkpoint, or refused by weights_only
+            log.warning("skipping unreadable checkpoint %s: %s", path, error)
+            continue
+        by_step.setdefault(step, path)
     return sorted(by_step.items())
 
 
@@ -54,13 +65,6 @@ def load_checkpoint(path: Path, device: torch.device) -> tuple[torch.nn.Module, 
     return model.to(device).eval(), datamodule
 
 
-def _cell(record: dict) -> str:
-    return (
-        f"{100 * record['success_rate']:.0f}% ({record['episodes']}, "
-        f"{100 * record['ci_low']:.0f}-{100 * record['ci_high']:.0f})"
-    )
-
-
 def evaluate_checkpoints(
     run_dir: Path,
     split: str,
@@ -75,13 +79,17 @@ def evaluate_checkpoints(
     """Evaluate every checkpoint of a run on the first `episodes` seeds of `split`."""
     checkpoints = checkpoint_steps(run_dir)
     if not checkpoints:
-        raise FileNotFoundError(f"no .ckpt files under {run_dir}")
+        raise FileNotFoundError(f"no readable .ckpt files under {run_dir}")
     device = device or torch.device("cuda" if torch.cuda.is_available() else "cpu")
     seeds = [split_seed(split, index) for index in range(episodes)]
     records, evaluator = [], None
     try:
         for step, path in checkpoints:
-            model, datamodule = load_checkpoint(path, device)
+            try:
+                model, datamodule = load_checkpoint(path, device)
+            except Exception as error:  # a checkpoint of another program, or damaged past its step
+                log.warning("skipping checkpoint %s that cannot be loaded: %s", path, error)
+                continue
             spec = EvaluationSpec.from_datamodule(
                 datamodule, split=split, setting=setting, imagery=imagery, cache_dir=cache_dir
             )
@@ -100,7 +108,7 @@ def evaluate_checkpoints(
                 global_step=step,
                 wall_s=time.perf_counter() - start,
             )
-            write_json(run_dir / "evaluation" / f"{path.stem}-{split}-{spec.setting}.json", record)
+            write_new_json(run_dir / "evaluation", f"{path.stem}-{split}-{spec.setting}", record)
             records.append(record)
     finally:
         if evaluator is not None:
@@ -108,9 +116,13 @@ def evaluate_checkpoints(
     return records
 
 
-def best_record(records: list[dict]) -> dict:
-    """Most successes; among equals the latest checkpoint."""
-    return max(records, key=lambda record: (record["successes"], record["global_step"]))
+def best_record(records: list[dict]) -> dict | None:
+    """Highest success rate among the evaluations without erred episodes; among equals the latest
+    checkpoint. None when every evaluation had errors."""
+    valid = [record for record in records if not record["errors"] and record["episodes"]]
+    if not valid:
+        return None
+    return max(valid, key=lambda record: (record["success_rate"], record["global_step"]))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -148,7 +160,14 @@ def main(argv: list[str] | None = None) -> int:
     for record in records:
         mark = " (best)" if record is best else ""
         name = Path(record["checkpoint"]).name
-        print(f"| {name}{mark} | {record['global_step']} | {_cell(record)} |")
+        print(f"| {name}{mark} | {record['global_step']} | {cell(record)} |")
+    if best is None:
+        print(
+            "nerf-transporter evaluate-checkpoints: every evaluation had erred episodes (see the "
+            "warnings above); none can be chosen. Fix the cause and evaluate again.",
+            file=sys.stderr,
+        )
+        return 1
     config = args.run_dir / "config.yaml"
     config_arg = str(config) if config.exists() else "<the run's config>"
     print(
@@ -166,6 +185,7 @@ def main(argv: list[str] | None = None) -> int:
                     "success_rate",
                     "ci_low",
                     "ci_high",
+                    "errors",
                 )
             }
             for record in records

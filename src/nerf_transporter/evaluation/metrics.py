@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from typing import Any
 
 import torch
 from scipy.stats import norm
@@ -61,15 +62,27 @@ class SuccessRate(Metric):
         return self.successes.float() / self.episodes.float()
 
 
-def summarize(successes: int, episodes: int, failures: Iterable[str | None] = ()) -> dict:
-    """Rate, 95% Wilson interval, counts and the tally of failure reasons, as JSON-ready values."""
-    low, high = wilson_interval(successes, episodes)
+def summarize(episodes: Iterable[Mapping[str, Any]]) -> dict:
+    """Figures of episode records (`EpisodeResult.to_json()`), as JSON-ready values.
+
+    The rate and its 95% Wilson interval are over the episodes that ran (successes and failures);
+    erred episodes are counted apart, with their seeds and reasons, and the tally of failure
+    reasons says why the robot missed.
+    """
+    episodes = list(episodes)
+    ran = [record for record in episodes if record.get("error") is None]
+    erred = [record for record in episodes if record.get("error") is not None]
+    successes = sum(bool(record["success"]) for record in ran)
+    low, high = wilson_interval(successes, len(ran))
     return {
-        "episodes": episodes,
+        "episodes": len(ran),
         "successes": successes,
-        "success_rate": successes / episodes if episodes else None,
+        "success_rate": successes / len(ran) if ran else None,
         "ci_low": low,
         "ci_high": high,
         "confidence": 0.95,
-        "failures": dict(Counter(reason for reason in failures if reason is not None)),
+        "failures": dict(Counter(r["failure"] for r in ran if r.get("failure") is not None)),
+        "errors": len(erred),
+        "erred_seeds": sorted(int(record["seed"]) for record in erred),
+        "error_reasons": dict(Counter(record["error"] for record in erred)),
     }

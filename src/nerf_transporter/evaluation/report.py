@@ -1,6 +1,6 @@
 """`nerf-transporter report logs/ [--csv]`: the results table of DESIGN section 10.
 
-Reads every `results.json` / `results-<setting>.json` (written by `lightning test`) under the given
+Reads every `results*.json` (written by `lightning test`, one per tested checkpoint) under the given
 directories and prints one row per method and one column per task/setting; a cell reads
 "rate% (n, CI)" with the 95% Wilson interval in percent, and is empty where no run exists. Where
 several runs exist for one cell, the newest wins.
@@ -53,13 +53,15 @@ def column_name(task: str, setting: str) -> str:
 
 
 def cell(record: dict) -> str:
-    """'rate% (n, low-high)' with percentages rounded to integers."""
-    episodes = record["episodes"]
+    """'rate% (n, low-high)' with percentages rounded to integers; '; k erred' appended when
+    episodes erred (they are not in n)."""
+    episodes, errors = record["episodes"], record.get("errors", 0)
+    erred = f"; {errors} erred" if errors else ""
     if episodes == 0:
-        return "- (0)"
+        return f"- (0{erred})"
     rate = round(100 * record["successes"] / episodes)
     low, high = round(100 * record["ci_low"]), round(100 * record["ci_high"])
-    return f"{rate}% ({episodes}, {low}-{high})"
+    return f"{rate}% ({episodes}, {low}-{high}{erred})"
 
 
 def _rank(value: str, known: tuple[str, ...]) -> tuple[int, str]:
@@ -106,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="nerf-transporter report",
         description="Print the success-rate table (rate% (episodes, 95% Wilson CI)) from the "
-        "results.json files that `lightning test` wrote under the given directories.",
+        "results files (results*.json) that `lightning test` wrote under the given directories.",
     )
     parser.add_argument("roots", nargs="*", type=Path, default=[Path("logs")], help="log dirs")
     parser.add_argument("--csv", action="store_true", help="CSV instead of a markdown table")
@@ -119,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     if not records:
         roots = " ".join(str(root) for root in args.roots)
         print(
-            f"nerf-transporter report: no results.json under {roots}; run "
+            f"nerf-transporter report: no results*.json under {roots}; run "
             "`lightning test --config <config> --ckpt_path <ckpt>` first",
             file=sys.stderr,
         )

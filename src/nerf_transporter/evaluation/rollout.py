@@ -2,9 +2,15 @@
 observation, `act`, execute the pick-and-place, judge (DESIGN section 10).
 
 Each `Evaluator` owns its environments, and every environment its own PyBullet client, so an
-evaluation never disturbs the simulator of data generation or of another evaluation. Any exception
-inside an episode (simulator, imagery, the policy) makes that episode a failure with its reason; the
-environment that raised is rebuilt for the next episode and the run goes on.
+evaluation never disturbs the simulator of data generation or of another evaluation.
+
+An episode ends in one of three outcomes. `success`: the task was achieved. `failure`: the robot
+acted and the task was not achieved (the object ended off its target pose, a pose was unreachable,
+or the simulator faulted during the robot's motion), with the reason. `error`: something that is
+not the robot's doing went wrong (imagery cache I/O, the imagery fit, resetting the simulator, the
+policy raising, out of memory); an erred episode says nothing about the policy, so success rates
+are computed over the episodes that ran, and errors are reported on their own. The environment that
+raised is rebuilt for the next episode and the run goes on.
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ from nerf_transporter import geometry
 from nerf_transporter.data.generate import IMAGERY_RUNTIME_FIELDS, pose_error_text
 from nerf_transporter.data.heightmap import heightmap_from_rgbd
 from nerf_transporter.evaluation.cache import ImageryCache, config_hash
+from nerf_transporter.sim.fingerprint import world_fingerprint
 
 log = logging.getLogger(__name__)
 
@@ -113,8 +120,10 @@ class EvaluationSpec:
         return geometry.view_grid(self.setting)
 
     def imagery_key(self) -> str:
-        """Hash of everything the imagery of a seed depends on besides task, setting and seed."""
+        """Hash of everything the imagery of a seed depends on besides task, setting and seed
+        (the world fingerprint included: a changed world never reuses old imagery)."""
         description: dict[str, Any] = {
+            "world": world_fingerprint(),
             "imagery": self.imagery,
             "views": self.views(),
             "pixel_size": self.pixel_size,
@@ -147,26 +156,38 @@ def _imagery_config(config: Any, pixel_size: float) -> Any:
 
 @dataclass
 class EpisodeResult:
-    """Outcome of one episode. `pose_error`: how far the object ended from its target (the
-    task's errors: position in metres, tilt and yaw in radians); `frames`: top-down colour before
-    and after the action, if recorded."""
+    """Outcome of one episode. `failure`: why the robot did not achieve the task; `error`: what
+    went wrong that was not the robot's doing (the episode then did not count); `pose_error`: how
+    far the object ended from its target (the task's errors: position in metres, tilt and yaw in
+    radians); `frames`: top-down colour before and after the action, if recorded."""
 
     seed: int
     success: bool
     failure: str | None
+    error: str | None = None
     action: dict[str, list[float]] | None = None
     timings: dict[str, float] = field(default_factory=dict)
     imagery_cached: bool | None = None
     pose_error: dict[str, float] = field(default_factory=dict)
     frames: np.ndarray | None = None
 
+    @property
+    def outcome(self) -> str:
+        """ "success", "failure" or "error" (see the module docstring)."""
+        if self.error is not None:
+            return "error"
+        return "success" if self.success else "failure"
+
     def to_json(self) -> dict:
         record = dataclasses.asdict(self)
         record.pop("frames")
-        return record
+        return {"outcome": self.outcome} | record
 
     def failure_text(self) -> str | None:
-        """The failure reason, with the pose errors where the task was simply not achieved."""
+        """Why the episode did not succeed: the error, or the failure reason with the pose errors
+        where the task was simply not achieved."""
+        if self.error is not None:
+            return f"error: {self.error}"
         if self.failure == NOT_ACHIEVED and self.pose_error:
             return pose_error_text(self.pose_error)
         return self.failure
@@ -343,15 +364,26 @@ class Evaluator:
             timings["step_s"] = time.perf_counter() - mark
             if record_frames:
                 frames.append(env.render_orthographic(0.0, 0.0)[0])
-        except Exception as error:
-            log.warning("episode with seed %d failed during %s", seed, stage, exc_info=True)
+        except Exception as exception:
             if stage in ("reset", "observation", "step"):
                 self._discard_env(rigs)
             timings["total_s"] = time.perf_counter() - start
+            text = f"{stage} raised {type(exception).__name__}: {exception}"
+            robot_fault = stage == "step" and not isinstance(exception, MemoryError)
+            log.warning(
+                "episode with seed %d %s during %s",
+                seed,
+                "failed" if robot_fault else "erred (not counted)",
+                stage,
+                exc_info=True,
+            )
             return EpisodeResult(
                 seed=seed,
                 success=False,
-                failure=f"{stage} raised {type(error).__name__}: {error}",
+                failure=f"simulator fault during the robot's motion ({text})"
+                if robot_fault
+                else None,
+                error=None if robot_fault else text,
                 action=action_record,
                 timings=timings,
                 imagery_cached=cached,
@@ -379,12 +411,16 @@ class Evaluator:
         record_frames: int = 0,
     ) -> list[EpisodeResult]:
         """Episodes for `seeds` in order, the first `record_frames` with frames; an optional
-        progress bar shows the successes so far."""
+        progress bar shows the successes (and errors) so far."""
         seeds = list(seeds)
         results: list[EpisodeResult] = []
         with tqdm(seeds, desc=desc, unit="episode", disable=not progress) as bar:
             for seed in bar:
                 frames = len(results) < record_frames
                 results.append(self.run_episode(method, int(seed), record_frames=frames))
-                bar.set_postfix(successes=sum(r.success for r in results))
+                errors = sum(r.error is not None for r in results)
+                bar.set_postfix(
+                    successes=sum(r.success for r in results),
+                    **({"errors": errors} if errors else {}),
+                )
         return results

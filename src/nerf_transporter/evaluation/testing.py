@@ -2,16 +2,19 @@
 
 The DataModule's test dataloader yields episode seeds (`seed_loader`); the methods' base class mixes
 in `ClosedLoopTest`, whose `test_step` runs those episodes with an `Evaluator` and whose epoch end
-pools the outcomes (across DDP processes), logs `test/success_rate`, its 95% Wilson interval and the
-episode count, and writes `results.json` beside the checkpoint (`results-<setting>.json` when the
-DataModule's `test_setting` differs from its training `setting`); `nerf-transporter report` reads
-these files.
+pools the outcomes (across DDP processes), logs `test/success_rate`, its 95% Wilson interval, the
+episode count and the erred episodes (`test/errors`, not counted in the rate), and writes
+`results-<checkpoint>.json` beside the checkpoint (`results-<checkpoint>-<setting>.json` when the
+DataModule's `test_setting` differs from its training `setting`). A results file is never
+replaced: testing the same checkpoint again writes `...-2.json`, and `nerf-transporter report`
+takes the newest. `lightning test` exits non-zero when any episode erred.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import sys
 import tempfile
 import time
 from datetime import datetime, timezone
@@ -23,12 +26,18 @@ from torch.utils.data import DataLoader, Dataset
 
 from nerf_transporter.evaluation.metrics import summarize
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
+from nerf_transporter.sim.fingerprint import world_fingerprint
 from nerf_transporter.splits import split_seed
 
 
-def results_file_name(setting: str, training_setting: str) -> str:
-    """`results.json`; `results-<setting>.json` when testing in another setting than trained in."""
-    return "results.json" if setting == training_setting else f"results-{setting}.json"
+def results_stem(
+    checkpoint: str | None, global_step: int, setting: str, training_setting: str
+) -> str:
+    """`results-<checkpoint stem>` (`results-step<N>` without a checkpoint file), with
+    `-<setting>` appended when testing in another setting than trained in."""
+    name = Path(checkpoint).stem if checkpoint else f"step{global_step}"
+    stem = f"results-{name}"
+    return stem if setting == training_setting else f"{stem}-{setting}"
 
 
 class SeedDataset(Dataset):
@@ -53,8 +62,10 @@ def seed_loader(split: str, episodes: int) -> DataLoader:
     return DataLoader(SeedDataset(split, episodes), batch_size=1, shuffle=False)
 
 
-def write_json(path: str | os.PathLike, payload: dict) -> Path:
-    """Write JSON atomically (temporary file, then rename)."""
+def write_json(path: str | os.PathLike, payload: dict, *, overwrite: bool = True) -> Path:
+    """Write JSON atomically (temporary file, then rename). With `overwrite=False` the file is
+    claimed atomically too: FileExistsError when `path` exists, even if another process wrote it
+    a moment ago."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}-")
@@ -62,11 +73,24 @@ def write_json(path: str | os.PathLike, payload: dict) -> Path:
         with os.fdopen(handle, "w") as file:
             json.dump(payload, file, indent=2)
             file.write("\n")
-        os.replace(temporary, path)
-    except BaseException:
+        if overwrite:
+            os.replace(temporary, path)
+        else:
+            os.link(temporary, path)  # fails if the name exists
+    finally:
         Path(temporary).unlink(missing_ok=True)
-        raise
     return path
+
+
+def write_new_json(directory: str | os.PathLike, stem: str, payload: dict) -> Path:
+    """Write `<stem>.json` in `directory`, or `<stem>-2.json`, `-3`, ... if taken: never replaces."""
+    number = 1
+    while True:
+        name = f"{stem}.json" if number == 1 else f"{stem}-{number}.json"
+        try:
+            return write_json(Path(directory) / name, payload, overwrite=False)
+        except FileExistsError:
+            number += 1
 
 
 def results_record(
@@ -79,13 +103,12 @@ def results_record(
     global_step: int | None,
     wall_s: float,
 ) -> dict[str, Any]:
-    """The results.json payload: identification, summary figures and every episode's record.
+    """The results file's payload: identification, summary figures and every episode's record.
 
     "imagery" is how the views were built for an imagery method (nerf, oracle), None for the
     methods that see the RGB-D heightmap or the state.
     """
     results = sorted(results, key=lambda result: result["seed"])
-    successes = sum(result["success"] for result in results)
     return {
         "method": method_name(method),
         "task": spec.task,
@@ -94,7 +117,8 @@ def results_record(
         "imagery": spec.imagery if getattr(method, "input_kind", None) == "imagery" else None,
         "checkpoint": checkpoint,
         "global_step": global_step,
-        **summarize(successes, len(results), [result["failure"] for result in results]),
+        "world": world_fingerprint(),
+        **summarize(results),
         "wall_s": wall_s,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "episode_results": results,
@@ -112,8 +136,31 @@ def method_name(module: torch.nn.Module) -> str:
     return str(getattr(module, "name", type(module).__name__))
 
 
+def erred_episodes_text(record: dict[str, Any]) -> str:
+    """One line per erred episode of a results record, under a headline."""
+    erred = [result for result in record["episode_results"] if result.get("error") is not None]
+    lines = [f"  seed {result['seed']}: {result['error']}" for result in erred]
+    return (
+        f"{len(erred)} of {len(record['episode_results'])} episodes erred (not the robot's doing; "
+        "left out of the success rate):\n" + "\n".join(lines)
+    )
+
+
+def erred_seeds_line(record: dict[str, Any]) -> str:
+    """The erred episodes of a results record in one line, with what to do."""
+    seeds = ", ".join(str(seed) for seed in record["erred_seeds"])
+    return (
+        f"{record['errors']} episodes erred (seeds {seeds}) and are left out of the success rate; "
+        "fix the cause (see the messages above) and test again"
+    )
+
+
 class ClosedLoopTest:
-    """Mixin for the methods' LightningModule base class: `trainer.test` runs closed-loop episodes."""
+    """Mixin for the methods' LightningModule base class: `trainer.test` runs closed-loop episodes.
+
+    After a test, `test_record` holds the results payload (for the CLI's exit status)."""
+
+    test_record: dict[str, Any] | None = None
 
     def on_test_epoch_start(self) -> None:
         spec = EvaluationSpec.from_datamodule(self.trainer.datamodule, split="test")
@@ -130,24 +177,38 @@ class ClosedLoopTest:
         if self.trainer.world_size > 1:
             results = gather_json(self, results)
         checkpoint = self.trainer.ckpt_path
+        if not checkpoint:
+            step = self.global_step
+        elif Path(checkpoint).is_file():
+            step = checkpoint_step(checkpoint)
+        else:
+            step = None  # a checkpoint behind a URL: Lightning read it, its step is not at hand
         record = results_record(
             results,
             method=self,
             spec=evaluator.spec,
             split="test",
             checkpoint=str(checkpoint) if checkpoint else None,
-            global_step=checkpoint_step(checkpoint) if checkpoint else self.global_step,
+            global_step=step,
             wall_s=time.perf_counter() - start,
         )
-        for name in ("success_rate", "ci_low", "ci_high", "episodes"):
+        for name in ("success_rate", "ci_low", "ci_high", "episodes", "errors"):
             if record[name] is not None:
                 self.log(f"test/{name}", float(record[name]))
+        self.test_record = record
         # trainer.log_dir is a collective call under DDP: every process asks for it
         directory = Path(checkpoint).parent if checkpoint else Path(self.trainer.log_dir or ".")
         if self.trainer.is_global_zero:
-            name = results_file_name(record["setting"], self.trainer.datamodule.setting)
-            path = write_json(directory / name, record)
+            stem = results_stem(
+                record["checkpoint"],
+                record["global_step"],
+                record["setting"],
+                self.trainer.datamodule.setting,
+            )
+            path = write_new_json(directory, stem, record)
             print(f"closed-loop test results written to {path}")
+            if record["errors"]:
+                print(erred_episodes_text(record), file=sys.stderr)
 
 
 def gather_json(module: Any, records: list[dict[str, Any]]) -> list[dict[str, Any]]:
