@@ -1,11 +1,13 @@
+import json
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
-from test_data_generate import MARK, PIXEL, FakeEnv
+from test_data_generate import MARK, PIXEL, FakeEnv, changed_world
 
 from nerf_transporter import geometry as g
+from nerf_transporter.data import episode as ep
 from nerf_transporter.data import generate as gen
 from nerf_transporter.data.datamodule import RavensDataModule, sample_negative_views
 from nerf_transporter.data.preprocess import COLOUR_MEAN, COLOUR_STD
@@ -159,3 +161,32 @@ def test_negative_views_are_distinct_and_near_ones_weighted_up():
 def test_negative_view_scale_must_be_positive(tmp_path):
     with pytest.raises(ValueError, match="negative_view_scale"):
         make(tmp_path, negative_view_scale=0.0)
+
+
+def test_data_of_another_world_is_not_trained_on(fake_world, tmp_path, monkeypatch):
+    make(tmp_path).prepare_data()
+    other_world = changed_world(gen.fingerprint.world())
+    monkeypatch.setattr(gen.fingerprint, "world", lambda: other_world)
+    module = make(tmp_path, generate_missing=False)
+    with pytest.raises(ep.WorldMismatchError) as error:
+        module.setup("fit")
+    assert "sim/tasks/block_insertion.py changed" in str(error.value)
+    assert str(error.value).endswith(
+        "nerf-transporter generate --task block-insertion --setting normal --split train "
+        f"--episodes 3 --imagery oracle --data-dir {tmp_path} --pixel-size 0.0125 --nerf-views 2 "
+        "--regenerate"
+    )
+    with pytest.raises(ep.WorldMismatchError):
+        make(tmp_path).prepare_data()  # generation refuses too, and deletes nothing
+    assert len(ep.list_episodes(tmp_path / "block-insertion-normal-train-oracle-px0.0125")) == 3
+
+
+def test_edited_label_is_not_trained_on(fake_world, tmp_path):
+    module = make(tmp_path)
+    module.prepare_data()
+    path = ep.list_episodes(tmp_path / "block-insertion-normal-train-oracle-px0.0125")[1].path
+    meta = json.loads((path / "meta.json").read_text())
+    meta["action"]["place"]["quat_xyzw"] = [0.0, 0.0, 0.0, 1.0]
+    (path / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(ep.CorruptEpisodeError, match=rf"{path.name}: meta\.json does not match"):
+        module.setup("fit")

@@ -4,7 +4,11 @@ real simulator."""
 import json
 import math
 import os
+import signal
 import socket
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -294,3 +298,185 @@ def test_real_nerf_imagery_episode(tmp_path):
     assert (
         json.loads((dataset / "dataset.json").read_text())["imagery"]["config"]["iterations"] == 30
     )
+
+
+def cli_args(data_dir, *changes: str) -> list[str]:
+    """`nerf-transporter generate` arguments of oracle_config() (later options override)."""
+    return [
+        "--task",
+        "block-insertion",
+        "--imagery",
+        "oracle",
+        "--episodes",
+        "1",
+        "--pixel-size",
+        str(PIXEL),
+        "--nerf-views",
+        "2",
+        "--data-dir",
+        str(data_dir),
+        "--no-progress",
+        *changes,
+    ]
+
+
+def changed_world(world: dict) -> dict:
+    """`world` with block_insertion.py changed."""
+    modules = {**world["modules"], "sim/tasks/block_insertion.py": "0" * 12}
+    return {**world, "fingerprint": "0" * 16, "modules": modules}
+
+
+def test_data_of_another_world_is_refused_until_regenerated(
+    fake_world, tmp_path, capsys, monkeypatch
+):
+    config = oracle_config()
+    dataset = gen.generate_dataset(config, 2, tmp_path, progress=False)
+    assert json.loads((dataset / "dataset.json").read_text())["world"] == gen.fingerprint.world()
+    (ref, _) = ep.list_episodes(dataset)
+    assert ep.read_meta(ref.path)["generation"] == json.loads(
+        (dataset / "dataset.json").read_text()
+    )
+    other_world = changed_world(gen.fingerprint.world())
+    monkeypatch.setattr(gen.fingerprint, "world", lambda: other_world)
+    command = config.command(3, tmp_path, regenerate=True)
+    with pytest.raises(ep.WorldMismatchError) as error:
+        gen.generate_dataset(config, 3, tmp_path, progress=False)
+    assert "sim/tasks/block_insertion.py changed" in str(error.value)
+    assert str(error.value).endswith(command)
+    (dataset / "dataset.json").unlink()  # the episodes' own records refuse them too
+    with pytest.raises(ep.WorldMismatchError, match=r"000000-0\).*\n  sim/tasks/block_insertion"):
+        gen.generate_dataset(config, 3, tmp_path, progress=False)
+    assert len(ep.list_episodes(dataset)) == 2 and not (dataset / "dataset.json").exists()
+    assert gen.main(cli_args(tmp_path, "--episodes", "3")) == 2
+    assert "block_insertion.py changed" in capsys.readouterr().err
+    assert gen.main(cli_args(tmp_path, "--episodes", "3", "--regenerate")) == 0
+    assert json.loads((dataset / "dataset.json").read_text())["world"] == other_world
+    refs = ep.list_episodes(dataset)
+    assert len(refs) == 3 and ep.read_meta(refs[0].path)["generation"]["world"] == other_world
+
+
+def test_dataset_without_a_recorded_world_is_refused(fake_world, tmp_path):
+    config = oracle_config()
+    dataset = gen.generate_dataset(config, 1, tmp_path, progress=False)
+    stored = json.loads((dataset / "dataset.json").read_text())
+    del stored["world"]  # as written before datasets recorded their world
+    (dataset / "dataset.json").write_text(json.dumps(stored))
+    with pytest.raises(
+        ep.WorldMismatchError,
+        match=r"(?s)no world is recorded.*\n  nerf-transporter generate .*--regenerate$",
+    ):
+        gen.generate_dataset(config, 1, tmp_path, progress=False)
+
+
+def test_regenerate_deletes_only_its_own_dataset(fake_world, tmp_path):
+    kept = gen.generate_dataset(oracle_config(pixel_size=0.025), 1, tmp_path, progress=False)
+    dataset = gen.generate_dataset(oracle_config(), 3, tmp_path, progress=False)
+    assert ep.failed_seeds(dataset)
+    before = {ref.path.name: ref.path.stat().st_ino for ref in ep.list_episodes(kept)}
+    gen.generate_dataset(oracle_config(), 1, tmp_path, progress=False, regenerate=True)
+    assert [ref.index for ref in ep.list_episodes(dataset)] == [0] and not ep.failed_seeds(dataset)
+    assert {ref.path.name: ref.path.stat().st_ino for ref in ep.list_episodes(kept)} == before
+
+
+def test_other_options_cannot_slip_in_after_dataset_json_is_deleted(fake_world, tmp_path):
+    dataset = gen.generate_dataset(oracle_config(), 1, tmp_path, progress=False)
+    (dataset / "dataset.json").unlink()
+    other = oracle_config(pixel_size=PIXEL + 1e-10)  # the same folder name (-px0.0125)
+    assert other.dataset_name() == dataset.name
+    with pytest.raises(
+        ep.DatasetConfigMismatchError, match=r"000000-0\).*\n  pixel_size: stored 0.0125, requested"
+    ):
+        gen.generate_dataset(other, 2, tmp_path, progress=False)
+    assert len(ep.list_episodes(dataset)) == 1 and not (dataset / "dataset.json").exists()
+    gen.generate_dataset(oracle_config(), 2, tmp_path, progress=False)  # the episodes' options
+    assert json.loads((dataset / "dataset.json").read_text())["pixel_size"] == PIXEL
+
+
+def test_edited_label_fails_dataset_info_verify(fake_world, tmp_path, capsys):
+    dataset = gen.generate_dataset(oracle_config(), 1, tmp_path, progress=False)
+    meta_path = ep.list_episodes(dataset)[0].path / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    meta["action"]["place"]["xyz"][1] += 0.01
+    meta_path.write_text(json.dumps(meta))
+    assert info.main([str(dataset), "--verify"]) == 1
+    assert "000000-0: meta.json does not match its checksum" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("changes", "named"),
+    [
+        (("--episodes", "0"), "--episodes must be >= 1, got 0"),
+        (("--episodes", "-3"), "--episodes must be >= 1, got -3"),
+        (("--pixel-size", "0"), "--pixel-size must be > 0"),
+        (("--pixel-size", "-0.0125"), "--pixel-size must be > 0"),
+        (("--pixel-size", "nan"), "--pixel-size must be > 0"),
+        (("--nerf-views", "-1"), "--nerf-views must be >= 0"),
+        (("--task", "nope"), "unknown task 'nope'; valid tasks: block-insertion"),
+        (("--setting", "weird"), "unknown setting 'weird'; valid settings: normal"),
+    ],
+)
+def test_bad_arguments_are_refused_before_anything_is_written(
+    fake_world, tmp_path, capsys, changes, named
+):
+    assert gen.main(cli_args(tmp_path / "data", *changes)) == 2
+    error = capsys.readouterr().err
+    assert error.startswith(f"nerf-transporter generate: {named}") and error.count("\n") == 1
+    assert not (tmp_path / "data").exists()
+
+
+@pytest.mark.parametrize("content", [b"\x89PNG\r\n\x1a\n\x00\xff", b"[1, 2]", b'"oracle"'])
+def test_unreadable_dataset_json_is_named(fake_world, tmp_path, capsys, content):
+    dataset = tmp_path / oracle_config().dataset_name()
+    dataset.mkdir()
+    (dataset / "dataset.json").write_bytes(content)
+    assert gen.main(cli_args(tmp_path)) == 2
+    error = capsys.readouterr().err
+    assert error.startswith(f"nerf-transporter generate: {dataset / 'dataset.json'} is not a")
+    assert [p.name for p in dataset.iterdir()] == ["dataset.json"]
+
+
+def test_corrupt_failed_record_is_named_and_nothing_written(fake_world, tmp_path, capsys):
+    dataset = gen.generate_dataset(oracle_config(), 2, tmp_path, progress=False)
+    record = dataset / "failed" / f"{split_seed('train', 1)}.json"
+    record.write_bytes(b"\x00\x01")
+    before = sorted(p.relative_to(dataset) for p in dataset.rglob("*"))
+    assert gen.main(cli_args(tmp_path, "--episodes", "4")) == 2
+    error = capsys.readouterr().err
+    assert error.startswith(f"nerf-transporter generate: failed-seed record {record} is corrupt")
+    assert "delete it" in error
+    assert sorted(p.relative_to(dataset) for p in dataset.rglob("*")) == before
+
+
+WORKER_PROBE = """
+import os, time
+from nerf_transporter.data import generate as gen
+pool = gen._executor(2)
+print(pool.submit(os.getpid).result(), flush=True)
+time.sleep(60)
+"""
+
+
+def _process_running(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rpartition(")")[2].split()[0] != "Z"  # a zombie has ended
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="parent-death signal is Linux's")
+def test_workers_die_with_a_killed_parent():
+    parent = subprocess.Popen([sys.executable, "-c", WORKER_PROBE], stdout=subprocess.PIPE)
+    worker = int(parent.stdout.readline())
+    try:
+        assert _process_running(worker)
+        parent.kill()  # SIGKILL: no clean-up in the parent
+        parent.wait()
+        deadline = time.monotonic() + 10
+        while _process_running(worker) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _process_running(worker)
+    finally:
+        if _process_running(worker):
+            os.kill(worker, signal.SIGKILL)
+        parent.stdout.close()

@@ -344,7 +344,9 @@ class RavensDataModule(pl.LightningDataModule):
         """The first `count` episodes of a split, or an error saying how to generate them."""
         config = self._config_for(split, count, input_kind)
         dataset_dir = self.data_dir / config.dataset_name()
-        ep.check_dataset_config(dataset_dir, config.description())
+        ep.check_dataset_config(
+            dataset_dir, config.description(), config.command(count, self.data_dir, regenerate=True)
+        )
         refs = ep.list_episodes(dataset_dir)[:count]
         if len(refs) < count:
             reason = (

@@ -11,16 +11,23 @@ The dataset is "the first N successful seeds of the split": running again adds n
 `--episodes` continues, an interrupted run resumes (a half-written episode is a temporary directory,
 removed on the next run). `--shard i/n` takes the seed indices k with k % n == i and produces that
 shard's share of the N episodes, so n machines together produce N.
+
+dataset.json and every episode record the configuration and the world (sim.fingerprint) they were
+made with: generating into a dataset of another configuration or world is refused, with the command
+that starts it afresh (`--regenerate` deletes the dataset's episodes, failed seeds and dataset.json
+first). Bad arguments are refused before anything is written.
 """
 
 from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
+import ctypes
 import dataclasses
 import math
 import multiprocessing
 import os
+import signal
 import sys
 import time
 from collections.abc import Iterator
@@ -34,6 +41,7 @@ from tqdm.auto import tqdm
 from nerf_transporter import geometry as g
 from nerf_transporter.data import episode as ep
 from nerf_transporter.data.labels import heightmap_labels, mira_labels
+from nerf_transporter.sim import SETTINGS, TASKS, fingerprint
 from nerf_transporter.splits import SPLITS, split_seed
 
 IMAGERY_KINDS = ("nerf", "oracle")
@@ -55,6 +63,21 @@ class GenerationConfig:
     imagery_options: dict[str, Any] = field(default_factory=dict)  # ImageryConfig fields
 
     def __post_init__(self) -> None:
+        if self.task not in TASKS:
+            raise ValueError(f"unknown task {self.task!r}; valid tasks: {', '.join(sorted(TASKS))}")
+        if self.setting not in SETTINGS:
+            raise ValueError(
+                f"unknown setting {self.setting!r}; valid settings: {', '.join(SETTINGS)}"
+            )
+        if not (math.isfinite(self.pixel_size) and self.pixel_size > 0) or (
+            min(g.image_shape(self.pixel_size)) < 1
+        ):
+            raise ValueError(
+                f"--pixel-size must be > 0 and smaller than the workspace (metres per pixel), "
+                f"got {self.pixel_size!r}"
+            )
+        if self.nerf_views < 0:
+            raise ValueError(f"--nerf-views must be >= 0, got {self.nerf_views}")
         if self.imagery not in IMAGERY_KINDS:
             raise ValueError(
                 f"unknown imagery {self.imagery!r}; valid choices: {', '.join(IMAGERY_KINDS)}"
@@ -87,9 +110,10 @@ class GenerationConfig:
         return name
 
     def description(self) -> dict[str, Any]:
-        """The content of dataset.json: everything that must match to append episodes."""
+        """The content of dataset.json (and of each episode's record): what must match to append."""
         description: dict[str, Any] = {
             "format": ep.FORMAT_VERSION,
+            "world": fingerprint.world(),
             "task": self.task,
             "setting": self.setting,
             "split": self.split,
@@ -112,8 +136,10 @@ class GenerationConfig:
             description["imagery"]["config"] = config
         return description
 
-    def command(self, episodes: int, data_dir: str | os.PathLike) -> str:
-        """The `nerf-transporter generate` command line that produces this dataset."""
+    def command(
+        self, episodes: int, data_dir: str | os.PathLike, *, regenerate: bool = False
+    ) -> str:
+        """The `nerf-transporter generate` command line that produces this dataset (afresh)."""
         words = [
             "nerf-transporter generate",
             f"--task {self.task}",
@@ -132,6 +158,8 @@ class GenerationConfig:
         words += [
             f"--imagery-option {key}={value}" for key, value in sorted(self.imagery_options.items())
         ]
+        if regenerate:
+            words.append("--regenerate")
         return " ".join(words)
 
 
@@ -292,6 +320,7 @@ def generate_episode(
         "action": {name: _pose_json(pose) for name, pose in action.items()},
         "state": [float(v) for v in obs["state"]],
         "imagery": {"kind": config.imagery, "quality": quality},
+        ep.GENERATION_KEY: config.description(),
         "timings_s": {
             "capture": capture_s,
             "ground_truth_views": truth_s,
@@ -300,6 +329,7 @@ def generate_episode(
             "total": time.perf_counter() - start,
         },
     }
+    _exit_if_orphaned()
     ep.write_episode(dataset_dir, index, seed, meta, arrays)
     return Outcome(index, seed, True, None, time.perf_counter() - start)
 
@@ -338,10 +368,27 @@ class _InlineExecutor(cf.Executor):
         return future
 
 
-def _init_worker(threads: int) -> None:
+PR_SET_PDEATHSIG = 1  # prctl option (linux/prctl.h): signal this process when its parent dies
+# In a worker process of `--workers N`: the generating process that started it.
+_PARENT_PID: int | None = None
+
+
+def _exit_if_orphaned() -> None:
+    """End this worker process now if the generating process that started it is gone."""
+    if _PARENT_PID is not None and os.getppid() != _PARENT_PID:
+        os._exit(1)
+
+
+def _init_worker(threads: int, parent: int) -> None:
+    """Worker set-up: torch threads, and dying with the generating process (even a kill -9 of it)."""
+    global _PARENT_PID
     import torch
 
     torch.set_num_threads(threads)
+    _PARENT_PID = parent
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    _exit_if_orphaned()  # the parent may have died before the death signal was set
 
 
 def _executor(workers: int) -> cf.Executor:
@@ -352,7 +399,7 @@ def _executor(workers: int) -> cf.Executor:
         max_workers=workers,
         mp_context=multiprocessing.get_context("spawn"),
         initializer=_init_worker,
-        initargs=(threads,),
+        initargs=(threads, os.getpid()),
     )
 
 
@@ -373,15 +420,24 @@ def generate_dataset(
     shard: tuple[int, int] = (0, 1),
     progress: bool = True,
     max_failures_in_a_row: int = 50,
+    regenerate: bool = False,
 ) -> Path:
     """Make `<data_dir>/<dataset name>` hold `episodes` episodes (this shard's share of them).
 
-    Gives up with RuntimeError after `max_failures_in_a_row` failed rollouts in a row."""
+    Data of another configuration or world is refused (ep.check_dataset_config); with `regenerate`
+    the dataset's episodes, failed seeds and dataset.json are deleted first. Gives up with
+    RuntimeError after `max_failures_in_a_row` failed rollouts in a row."""
+    if episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {episodes}")
     dataset_dir = Path(data_dir) / config.dataset_name()
-    ep.ensure_dataset_config(dataset_dir, config.description())
+    if regenerate:
+        ep.remove_dataset(dataset_dir)
+    done, failed = dataset_status(dataset_dir, shard)
+    ep.ensure_dataset_config(
+        dataset_dir, config.description(), config.command(episodes, data_dir, regenerate=True)
+    )
     ep.remove_stale_temp_dirs(dataset_dir)
     target = shard_target(episodes, shard)
-    done, failed = dataset_status(dataset_dir, shard)
     todo = _pending_indices(config.split, shard, done, failed)
 
     bar = tqdm(
@@ -492,6 +548,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="an ImageryConfig field for --imagery nerf (repeatable)",
     )
+    parser.add_argument(
+        "--regenerate",
+        action="store_true",
+        help="first delete the dataset's episodes, failed seeds and dataset.json (e.g. after the "
+        "world changed); with --shard, pass it to one shard only, before the others start",
+    )
     parser.add_argument("--no-progress", action="store_true")
     return parser
 
@@ -517,6 +579,7 @@ def main(argv: list[str] | None = None) -> int:
             workers=args.workers,
             shard=shard,
             progress=not args.no_progress,
+            regenerate=args.regenerate,
         )
     except (ValueError, RuntimeError, ep.DatasetConfigMismatchError) as error:
         print(f"nerf-transporter generate: {error}", file=sys.stderr)
