@@ -11,7 +11,8 @@ How to add a task family:
    `float_height`, `sample_free_xy`, `flat_pose`.
 3. Override `max_targets` when the task has more than one target (it fixes the state length), and
    `oracle_target` / `pick_point` if the generic oracle does not fit.
-4. Register the class with one line in `sim/tasks/__init__.py`.
+4. Register the class with one line in `sim/tasks/__init__.py`, and add its name to
+   `TASK_NAMES` in `sim/registration.py` (its gymnasium id; a test checks the two agree).
 
 The generic oracle picks a random point on the visible top surface of the object (from an
 orthographic top-down segmentation) and places at `target . inv(object) . pick`; the generic reward
