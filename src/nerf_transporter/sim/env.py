@@ -285,7 +285,8 @@ class RavensEnv(gym.Env):
     def render_orthographic(
         self, roll: float, pitch: float, pixel_size: float = geometry.PIXEL_SIZE
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Ground-truth colour and height of view (roll, pitch), robot not shown (DESIGN section 6)."""
+        """Ground-truth colour and height of view (roll, pitch), robot not shown (docs/conventions.md,
+        "Views and the view grid")."""
         return self._without_robot(
             lambda: cameras.render_orthographic(self.client, roll, pitch, pixel_size)
         )

@@ -3,7 +3,8 @@
 How to add a task family:
 
 1. Subclass `Task` in a new module `sim/tasks/<name>.py`; set `name` (e.g. "hanging-disks") and
-   `tolerance` (a `Tolerance`, the success check of DESIGN section 4, kept only there).
+   `tolerance` (a `Tolerance`, the success check of docs/conventions.md, "Tasks, settings and
+   success", kept only there).
 2. Implement `build(env, rng)`: load the bodies with `assets.load(env.client, ...)` and set
    `self.object_id` (the body the robot moves), `self.target_poses` (the poses the object must end
    at; any one counts) and optionally `self.target_ids` / `self.distractor_ids`. Use only `rng` for
