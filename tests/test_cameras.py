@@ -58,7 +58,7 @@ def test_orthographic_box_pixels_and_height(client, view, box_tilt, position):
 
 
 def test_orthographic_top_down_is_not_mirrored(client):
-    """Rows grow with +y and columns with +x (DESIGN section 6), unlike a camera image."""
+    """Rows grow with +y and columns with +x (docs/conventions.md, "Pixels"), unlike a camera image."""
     body = _add_box(client, (0.35, -0.3, 0.02), np.eye(3))
     _, _, ids = cameras.render_orthographic(client, 0.0, 0.0, segmentation=True)
     rows, cols = np.nonzero(ids == body)

@@ -19,7 +19,7 @@ def test_euler_order_is_ry_rx_rz():
     assert np.allclose(g.euler_to_matrix(roll, pitch, yaw), expected)
 
 
-def test_pixel_convention_matches_design():
+def test_pixel_convention_matches_the_docs():
     assert np.allclose(g.pixel_to_world([0, 0], 0.0), [0.25, -0.5, 0.0])
     assert np.allclose(
         g.pixel_to_world([10, 20], 0.1), [0.25 + 20 * 0.003125, -0.5 + 10 * 0.003125, 0.1]

@@ -13,7 +13,7 @@ from nerf_transporter.imagery.rays import (
 from nerf_transporter.imagery.synthetic import ring_cameras
 
 
-def test_top_down_rays_land_exactly_on_the_design_pixel_grid():
+def test_top_down_rays_land_exactly_on_the_convention_pixel_grid():
     rays = orthographic_rays(0.0, 0.0)
     rows, cols = geometry.image_shape()
     assert len(rays) == rows * cols == 320 * 160
@@ -21,7 +21,7 @@ def test_top_down_rays_land_exactly_on_the_design_pixel_grid():
     expected = geometry.pixel_to_world(grid, ORTHO_START_HEIGHT)
     assert np.allclose(rays.origins.numpy(), expected, atol=1e-6)
     assert np.allclose(rays.directions.numpy(), [0.0, 0.0, -1.0])
-    # (row 10, col 20) is x = 0.25 + 20 s, y = -0.5 + 10 s, as DESIGN section 3 says
+    # (row 10, col 20) is x = 0.25 + 20 s, y = -0.5 + 10 s, as docs/conventions.md ("Pixels") says
     assert np.allclose(rays.origins[10 * cols + 20, :2].numpy(), [0.3125, -0.46875], atol=1e-6)
     # every ray stays on its pixel all the way down, and ends on the floor at height 0
     assert np.allclose(depth_to_height(rays.floor).numpy(), 0.0, atol=1e-5)

@@ -1,11 +1,18 @@
-"""`nerf-transporter oracle`: per-episode lines, the JSON summary, a watchable video, bad input."""
+"""`nerf-transporter oracle`: per-episode lines, the JSON summary, a watchable video, bad input,
+`--help`, and no PyBullet banner in the output."""
 
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import imageio.v2 as imageio
 import pytest
 
 from nerf_transporter.sim.oracle_cli import main
+
+SRC = Path(__file__).resolve().parents[1] / "src"
 
 
 def test_episode_lines_json_summary_and_mp4_video(tmp_path, capsys):
@@ -34,8 +41,6 @@ def test_episode_lines_json_summary_and_mp4_video(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--task", "block-stacking"], "block-insertion"),
-        (["--task", "block-insertion", "--setting", "hard"], "challenging"),
         (["--task", "block-insertion", "--video", "episode.avi"], ".mp4 or .gif"),
         (["--task", "block-insertion", "--episodes", "0"], "at least 1"),
     ],
@@ -43,3 +48,45 @@ def test_episode_lines_json_summary_and_mp4_video(tmp_path, capsys):
 def test_bad_input_exits_2_with_a_clear_message(argv, message, capsys):
     assert main(argv) == 2
     assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--task", "block-stacking"], "block-insertion"),
+        (["--task", "block-insertion", "--setting", "hard"], "challenging"),
+    ],
+)
+def test_unknown_task_or_setting_exits_2_listing_the_choices(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_help_shows_choices_and_defaults(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "{block-insertion,hanging-disks,place-red-in-green,stacking-kits}" in text
+    assert "{normal,challenging,flat}" in text
+    assert "(default: normal)" in text
+    assert "(default: 10)" in text
+
+
+def test_no_pybullet_banner_in_the_output():
+    """PyBullet prints its build time on import and its argv on connect unless silenced."""
+    result = subprocess.run(
+        [sys.executable, "-m", "nerf_transporter.cli", "oracle", "--episodes", "1"]
+        + ["--task", "block-insertion"],
+        env={**os.environ, "PYTHONPATH": str(SRC)},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "block-insertion normal: " in result.stdout
+    for output in (result.stdout, result.stderr):
+        assert "argv[0]=" not in output
+        assert "pybullet build time" not in output

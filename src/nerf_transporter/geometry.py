@@ -1,11 +1,11 @@
 """Frames, rotations, poses and pixel <-> world maps shared by every part of the project.
 
-Conventions (DESIGN sections 3 and 6):
+Conventions (docs/conventions.md, "Frames and units" to "Views and the view grid"):
 
 - Workspace x in [0.25, 0.75], y in [-0.5, 0.5], z in [0, 0.28] m; centre c = (0.5, 0, 0).
 - Top-down image: 320 rows (y) x 160 columns (x), pixel size 0.003125 m;
   pixel (row i, col j) <-> x = 0.25 + j * s, y = -0.5 + i * s; height = z.
-- Orientation: R = Ry(pitch) . Rx(roll) . Rz(yaw) ("eulerXYZ" of Ravens, as DESIGN defines it).
+- Orientation: R = Ry(pitch) . Rx(roll) . Rz(yaw) ("eulerXYZ" of Ravens; "Orientation convention").
 - View v is the rotation R_v = Ry(pitch_v) . Rx(roll_v); world point P is seen in view v at
   P' = R_v^T (P - c) + c, and P' is mapped to pixels and height as in the top-down image.
 - Quaternions are (x, y, z, w), as PyBullet uses them. A pose is (xyz, quat_xyzw).

@@ -1,4 +1,5 @@
-"""Oracle action <-> training labels, and predicted labels -> action (DESIGN section 7).
+"""Oracle action <-> training labels, and predicted labels -> action (docs/conventions.md,
+"Labels and actions").
 
 Labels are computed from the action expressed in the frames of two views: the pick view (always the
 top-down view) and the place view (the grid view nearest to the place tilt for `mira`; the top-down

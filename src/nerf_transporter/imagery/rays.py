@@ -108,9 +108,9 @@ def orthographic_rays(
 ) -> Rays:
     """Rays of view (roll, pitch), one per pixel in row-major order, along -z of the view frame.
 
-    Pixel (i, j) of the view is the world line {c + R_v (P' - c)} with P' = (x_j, y_i, h) as in DESIGN
-    section 6; the ray starts at h = ORTHO_START_HEIGHT, so the height of a point at distance t is
-    ORTHO_START_HEIGHT - t.
+    Pixel (i, j) of the view is the world line {c + R_v (P' - c)} with P' = (x_j, y_i, h) as in
+    docs/conventions.md, "Views and the view grid"; the ray starts at h = ORTHO_START_HEIGHT, so
+    the height of a point at distance t is ORTHO_START_HEIGHT - t.
     """
     rotation = geometry.tilt_matrix(roll, pitch)
     in_view = geometry.pixel_to_world(view_pixel_grid(pixel_size), ORTHO_START_HEIGHT, pixel_size)

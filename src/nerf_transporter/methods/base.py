@@ -18,8 +18,9 @@ from nerf_transporter.models.transport import placement_cross_entropy, unravel_a
 Batch = dict[str, torch.Tensor]
 Action = dict[str, g.Pose]
 INPUT_KINDS = ("imagery", "heightmap", "state")
-# FCN width of the image methods: 16 keeps a full-size mira step near 2 s on a 2-core CPU;
-# Transporter networks use 64 (set model.init_args.width on a GPU).
+# FCN width of the image methods: at 16 a full-size mira training step takes 0.5 s with 2 threads on
+# the 2-core development CPU (README, "Speed"); Transporter networks use 64 (set
+# model.init_args.width on a GPU).
 DEFAULT_WIDTH = 16
 
 

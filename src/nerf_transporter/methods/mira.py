@@ -1,4 +1,5 @@
-"""`mira`: Transporter networks searching the NeRF mental imagery (DESIGN sections 7 and 8)."""
+"""`mira`: Transporter networks searching the NeRF mental imagery (docs/conventions.md,
+"Labels and actions")."""
 
 from __future__ import annotations
 

@@ -170,7 +170,8 @@ def render_orthographic(
     pixel_size: float = geometry.PIXEL_SIZE,
     segmentation: bool = False,
 ) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Ground-truth orthographic view (roll, pitch) of everything in the client (DESIGN section 6).
+    """Ground-truth orthographic view (roll, pitch) of everything in the client
+    (docs/conventions.md, "Views and the view grid").
 
     Pixel (i, j) shows the first surface met from above along the view axis at view coordinates
     x' = 0.25 + j s, y' = -0.5 + i s; height is that surface's z'. Returns colour uint8 [H, W, 3]

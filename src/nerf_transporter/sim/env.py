@@ -1,15 +1,24 @@
-"""RavensEnv: a gymnasium environment of one task, one pick-and-place per step."""
+"""RavensEnv: a gymnasium environment of one task, one pick-and-place per step.
+
+PyBullet's C extension prints its build time when imported and its arguments when it connects,
+straight to the process's standard output and error; `native_output_silenced` keeps both out of the
+output of every command (and the GUI's start-up chatter out of standard output).
+"""
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import functools
-from collections.abc import Callable, Sequence
+import math
+import os
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
 
 import gymnasium as gym
 import numpy as np
-import pybullet
 from gymnasium import spaces
-from pybullet_utils.bullet_client import BulletClient
 
 from nerf_transporter import geometry
 from nerf_transporter.sim import assets, cameras
@@ -18,15 +27,78 @@ from nerf_transporter.sim.robot import Robot
 from nerf_transporter.sim.tasks import TASKS
 from nerf_transporter.sim.tasks.base import SETTINGS, Task
 
+
+@contextlib.contextmanager
+def native_output_silenced(stderr: bool = True) -> Iterator[None]:
+    """Point file descriptor 1 (and 2 unless `stderr` is False) at the null device meanwhile.
+
+    This silences what native code writes to the process's descriptors, past `sys.stdout` and
+    `sys.stderr`; Python's streams are flushed before and C's stdio buffers before the descriptors
+    are restored, so nothing else is lost or reordered.
+    """
+    descriptors = (1, 2) if stderr else (1,)
+    for stream in (sys.stdout, sys.stderr):
+        if stream is not None:
+            stream.flush()
+    saved = [os.dup(fd) for fd in descriptors]
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        for fd in descriptors:
+            os.dup2(null, fd)
+        yield
+    finally:
+        if os.name == "posix":
+            ctypes.CDLL(None).fflush(None)
+        for fd, copy in zip(descriptors, saved, strict=True):
+            os.dup2(copy, fd)
+            os.close(copy)
+        os.close(null)
+
+
+with native_output_silenced():
+    import pybullet
+    from pybullet_utils.bullet_client import BulletClient
+
 RIGS = ("state", "rgbd", "nerf")
 TIME_STEP = 1.0 / 240.0
 TABLE_SIZE = (1.6, 1.6, 0.02)
+VIDEO_EYE = np.array([0.55, -1.25, 0.75])
+VIDEO_TARGET = np.array([0.35, 0.0, 0.15])
 VIDEO_CAMERA = cameras.Camera(
     cameras.intrinsics_matrix(300.0, (360, 480)),
-    cameras.look_at((0.55, -1.25, 0.75), (0.35, 0.0, 0.15)),
+    cameras.look_at(VIDEO_EYE, VIDEO_TARGET),
     (360, 480),
 )
 HIDDEN_POSITION = (0.0, 0.0, -50.0)
+RENDER_MODES = ("human", "rgb_array")
+
+
+def connect(render_mode: str | None = None) -> BulletClient:
+    """A new PyBullet client: headless, or PyBullet's GUI window for `render_mode="human"`.
+
+    The GUI looks at the workspace from where `VIDEO_CAMERA` does. Without a display PyBullet's GUI
+    would end the process, so a missing `DISPLAY` (Linux) is a RuntimeError here instead.
+    """
+    if render_mode != "human":
+        with native_output_silenced():
+            return BulletClient(connection_mode=pybullet.DIRECT)
+    if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+        raise RuntimeError(
+            "render_mode='human' opens PyBullet's GUI window, which needs a display (DISPLAY is "
+            "not set); render_mode='rgb_array' returns frames without one"
+        )
+    offset = VIDEO_EYE - VIDEO_TARGET
+    distance = float(np.linalg.norm(offset))
+    with native_output_silenced(stderr=False):
+        client = BulletClient(connection_mode=pybullet.GUI)
+        client.configureDebugVisualizer(pybullet.COV_ENABLE_GUI, 0)
+        client.resetDebugVisualizerCamera(
+            cameraDistance=distance,
+            cameraYaw=math.degrees(math.atan2(offset[0], -offset[1])),
+            cameraPitch=-math.degrees(math.asin(offset[2] / distance)),
+            cameraTargetPosition=VIDEO_TARGET.tolist(),
+        )
+    return client
 
 
 def _pose_space() -> spaces.Tuple:
@@ -54,9 +126,13 @@ class RavensEnv(gym.Env):
     `rigs` picks what `obs` holds (`state`, `rgbd`, `nerf`; see docs/interfaces.md). Episodes are
     functions of the reset seed. The `nerf` rig is captured with the arm out of view (as if it had
     moved away for the capture) unless `nerf_show_robot`; the `rgbd` rig sees the arm at home.
+
+    `render_mode`: `"rgb_array"` makes `render()` return a frame of a fixed side camera; `"human"`
+    shows the simulation in PyBullet's GUI window (needs a display) and runs it no faster than
+    real time, so that the motion can be followed.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 24}
+    metadata = {"render_modes": list(RENDER_MODES), "render_fps": 24}
 
     def __init__(
         self,
@@ -71,7 +147,9 @@ class RavensEnv(gym.Env):
         if unknown:
             raise ValueError(f"unknown rig(s) {unknown}; valid rigs: {', '.join(RIGS)}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"unknown render_mode {render_mode!r}; valid: rgb_array")
+            raise ValueError(
+                f"unknown render_mode {render_mode!r}; valid: {', '.join(RENDER_MODES)}"
+            )
         self.task = task
         self.rigs = tuple(rigs)
         self.render_mode = render_mode
@@ -91,12 +169,13 @@ class RavensEnv(gym.Env):
             observation["nerf"] = _camera_space(nerf_views, tuple(nerf_image_size), depth=False)
         self.observation_space = spaces.Dict(observation)
         self.action_space = spaces.Dict({"pick": _pose_space(), "place": _pose_space()})
-        self.client = BulletClient(connection_mode=pybullet.DIRECT)
+        self.client = connect(render_mode)
         self.robot: Robot | None = None
         self.frame_callback: Callable[[np.ndarray], None] | None = None
         self.frame_every = 8
         self._sim_steps = 0
         self._steps = 0
+        self._clock = (time.perf_counter(), 0)  # (wall-clock time, simulation steps) of a start
 
     # -- gymnasium API -------------------------------------------------------------------------
 
@@ -118,6 +197,7 @@ class RavensEnv(gym.Env):
         self.robot = Robot(client)
         self._sim_steps = 0
         self._steps = 0
+        self._clock = (time.perf_counter(), 0)
         self.task.reset(self, self.np_random)
         self.settle()
         return self._observation(), {"seed": seed}
@@ -125,6 +205,7 @@ class RavensEnv(gym.Env):
     def step(self, action: dict) -> tuple[dict, float, bool, bool, dict]:
         if self.robot is None:
             raise RuntimeError("call reset() before step()")
+        self._clock = (time.perf_counter(), self._sim_steps)
         failure = pick_and_place(self, action["pick"], action["place"])
         self.settle()
         self._steps += 1
@@ -135,24 +216,32 @@ class RavensEnv(gym.Env):
         return self._observation(), reward, terminated, False, info
 
     def render(self) -> np.ndarray | None:
-        """RGB frame of a fixed side camera that sees the robot and the workspace."""
+        """RGB frame of a fixed side camera that sees the robot and the workspace (`rgb_array`);
+        None otherwise (`human`: the GUI window shows the simulation as it runs)."""
         if self.render_mode != "rgb_array":
             return None
         return cameras.render(self.client, VIDEO_CAMERA)[0]
 
     def close(self) -> None:
         if self.client is not None and self.client.isConnected():
-            self.client.disconnect()
+            with native_output_silenced(stderr=False):  # the GUI reports its threads stopping
+                self.client.disconnect()
 
     # -- simulation ------------------------------------------------------------------------------
 
     def step_simulation(self, count: int = 1) -> None:
-        """Advance physics; every `frame_every` steps hand a video frame to `frame_callback`."""
+        """Advance physics; every `frame_every` steps hand a video frame to `frame_callback`.
+        In render mode `human`, wait as needed so that simulated time does not run ahead of the
+        wall clock since the last `reset` or `step` began."""
         for _ in range(count):
             self.client.stepSimulation()
             self._sim_steps += 1
             if self.frame_callback is not None and self._sim_steps % self.frame_every == 0:
                 self.frame_callback(cameras.render(self.client, VIDEO_CAMERA)[0])
+            if self.render_mode == "human":
+                start_time, start_steps = self._clock
+                ahead = start_time + (self._sim_steps - start_steps) * TIME_STEP
+                time.sleep(max(0.0, ahead - time.perf_counter()))
 
     def is_dynamic(self, body: int) -> bool:
         return (
@@ -196,7 +285,8 @@ class RavensEnv(gym.Env):
     def render_orthographic(
         self, roll: float, pitch: float, pixel_size: float = geometry.PIXEL_SIZE
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Ground-truth colour and height of view (roll, pitch), robot not shown (DESIGN section 6)."""
+        """Ground-truth colour and height of view (roll, pitch), robot not shown (docs/conventions.md,
+        "Views and the view grid")."""
         return self._without_robot(
             lambda: cameras.render_orthographic(self.client, roll, pitch, pixel_size)
         )

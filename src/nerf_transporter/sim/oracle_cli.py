@@ -18,10 +18,16 @@ VIDEO_SUFFIXES = (".mp4", ".gif")
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="nerf-transporter oracle", description=__doc__)
-    parser.add_argument("--task", required=True, help=f"one of: {', '.join(sorted(TASKS))}")
-    parser.add_argument("--setting", default="normal", help=f"one of: {', '.join(SETTINGS)}")
-    parser.add_argument("--episodes", type=int, default=10)
+    parser = argparse.ArgumentParser(
+        prog="nerf-transporter oracle",
+        description=__doc__,
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--task", required=True, choices=sorted(TASKS), help="task family")
+    parser.add_argument(
+        "--setting", default="normal", choices=SETTINGS, help="tilt range of the targets"
+    )
+    parser.add_argument("--episodes", type=int, default=10, help="episodes to run")
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (then +1)")
     parser.add_argument("--json", action="store_true", help="end with one JSON summary line")
     parser.add_argument(

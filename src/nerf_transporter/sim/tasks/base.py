@@ -3,7 +3,8 @@
 How to add a task family:
 
 1. Subclass `Task` in a new module `sim/tasks/<name>.py`; set `name` (e.g. "hanging-disks") and
-   `tolerance` (a `Tolerance`, the success check of DESIGN section 4, kept only there).
+   `tolerance` (a `Tolerance`, the success check of docs/conventions.md, "Tasks, settings and
+   success", kept only there).
 2. Implement `build(env, rng)`: load the bodies with `assets.load(env.client, ...)` and set
    `self.object_id` (the body the robot moves), `self.target_poses` (the poses the object must end
    at; any one counts) and optionally `self.target_ids` / `self.distractor_ids`. Use only `rng` for
@@ -11,7 +12,8 @@ How to add a task family:
    `float_height`, `sample_free_xy`, `flat_pose`.
 3. Override `max_targets` when the task has more than one target (it fixes the state length), and
    `oracle_target` / `pick_point` if the generic oracle does not fit.
-4. Register the class with one line in `sim/tasks/__init__.py`.
+4. Register the class with one line in `sim/tasks/__init__.py`, and add its name to
+   `TASK_NAMES` in `sim/registration.py` (its gymnasium id; a test checks the two agree).
 
 The generic oracle picks a random point on the visible top surface of the object (from an
 orthographic top-down segmentation) and places at `target . inv(object) . pick`; the generic reward
