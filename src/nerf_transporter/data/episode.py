@@ -1,4 +1,4 @@
-"""On-disk format of a demonstration dataset (DESIGN section 9).
+"""On-disk format of a demonstration dataset (docs/conventions.md, "Data layout on disk").
 
     <dataset>/
       dataset.json            generation config; appending with a different config is refused

@@ -1,4 +1,4 @@
-"""Closed-loop evaluation (DESIGN section 10).
+"""Closed-loop evaluation (docs/conventions.md, "Evaluation protocol").
 
 - `rollout`: one test episode for any method (`Evaluator`, `EvaluationSpec`, `EpisodeResult`);
 - `cache`: evaluation imagery cached on disk by task, setting, seed and imagery config;

@@ -1,4 +1,4 @@
-"""`nerf-transporter report logs/ [--csv]`: the results table of DESIGN section 10.
+"""`nerf-transporter report logs/ [--csv]`: the results table (docs/conventions.md, "Evaluation protocol").
 
 Reads every `results*.json` (written by `lightning test`, one per tested checkpoint) under the given
 directories and prints one row per method and one column per task/setting; a cell reads

@@ -1,5 +1,5 @@
 """One closed-loop test episode for any method: reset with the seed, capture, build the method's
-observation, `act`, execute the pick-and-place, judge (DESIGN section 10).
+observation, `act`, execute the pick-and-place, judge (docs/conventions.md, "Evaluation protocol").
 
 Each `Evaluator` owns its environments, and every environment its own PyBullet client, so an
 evaluation never disturbs the simulator of data generation or of another evaluation.
@@ -297,7 +297,8 @@ class Evaluator:
                 capture["rgb"], capture["intrinsics"], capture["cam_to_world"], config
             )
             colour, height = render_views(scene, views, config)
-        # training episodes store height as float16 (DESIGN section 9): evaluate on the same values
+        # training episodes store height as float16 (docs/conventions.md, "Data layout on disk"):
+        # evaluate on the same values
         height = np.asarray(height).astype(np.float16).astype(np.float32)
         imagery = {"colour": np.asarray(colour, dtype=np.uint8), "height": height, "views": views}
         if self.cache is not None:
