@@ -283,3 +283,32 @@ def test_a_pickled_payload_behind_a_url_is_refused(tmp_path, capsys, monkeypatch
     assert code == 2
     assert "refused to load the checkpoint" in capsys.readouterr().err
     assert not (tmp_path / "exploited").exists()
+
+
+@pytest.mark.parametrize("config", TASK_CONFIGS[:5], ids=lambda p: p.stem)
+def test_gpu_overlays_stack_on_task_and_method_configs(config):
+    overlays = [
+        REPO / "configs/gpu" / name for name in ("h100.yaml", "bf16.yaml", "no_pybullet.yaml")
+    ]
+    argv = ["--config", str(config), "--config", str(REPO / "configs/model/transporter_se3.yaml")]
+    argv += [arg for overlay in overlays for arg in ("--config", str(overlay))]
+    cli = build_cli([*argv, "--trainer.accelerator", "cpu"], run=False)  # no GPU here
+    assert type(cli.model).__name__ == "TransporterSE3" and cli.model.hparams["width"] == 64
+    assert (cli.datamodule.num_workers, cli.datamodule.pin_memory) == (8, True)
+    assert cli.trainer.precision == "bf16-mixed"
+    assert (
+        cli.trainer.max_steps == build_cli(["--config", str(config)], run=False).trainer.max_steps
+    )
+    assert not [c for c in cli.trainer.callbacks if type(c).__name__ == "SuccessRateCallback"]
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_mixed_precision_fit(name, tmp_path):
+    """The bf16 autocast path of configs/gpu/bf16.yaml, run on the CPU's autocast."""
+    config = tiny_config(tmp_path / "tiny.yaml", batch_size=2)
+    cli = build_cli(
+        ["fit", "--config", str(config), "--config", str(REPO / f"configs/model/{name}.yaml")]
+        + ["--trainer.precision", "bf16-mixed"]
+    )
+    assert cli.trainer.global_step == 2
+    assert torch.isfinite(cli.trainer.callback_metrics["train_loss"])

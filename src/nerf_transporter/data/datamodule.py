@@ -219,7 +219,8 @@ class RavensDataModule(pl.LightningDataModule):
     that prints the `nerf-transporter generate` command to run. `input_kind` is read from the model
     being trained (`trainer.lightning_module.input_kind`), or from the argument without a trainer.
     Closed-loop success rates are measured by the evaluation code: the test dataloader yields the
-    first `test_episodes` test seeds, run in `test_setting` (default: `setting`).
+    first `test_episodes` test seeds, run in `test_setting` (default: `setting`). `pin_memory` puts
+    batches in page-locked memory for a faster copy to a GPU (with `num_workers` loading them).
 
     Methods that do not use imagery (heightmap, state) read any existing dataset of the task with
     the configured imagery, else one generated with `imagery="oracle"`: their inputs (RGB-D, state)
@@ -251,6 +252,7 @@ class RavensDataModule(pl.LightningDataModule):
         generate_workers: int = 1,
         test_episodes: int = 100,
         test_setting: str | None = None,
+        pin_memory: bool = False,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -280,6 +282,7 @@ class RavensDataModule(pl.LightningDataModule):
         self.nerf_views, self.nerf_image_size = nerf_views, tuple(nerf_image_size)
         self.imagery_config, self.generate_workers = dict(imagery_config or {}), generate_workers
         self.test_episodes, self.test_setting = test_episodes, test_setting
+        self.pin_memory = pin_memory
         self.train_dataset: DemoDataset | None = None
         self.val_dataset: DemoDataset | None = None
 
@@ -383,6 +386,7 @@ class RavensDataModule(pl.LightningDataModule):
             sampler=sampler,
             num_workers=self.num_workers,
             persistent_workers=self.num_workers > 0,
+            pin_memory=self.pin_memory,
         )
 
     def train_dataloader(self) -> DataLoader:
