@@ -312,3 +312,14 @@ def test_mixed_precision_fit(name, tmp_path):
     )
     assert cli.trainer.global_step == 2
     assert torch.isfinite(cli.trainer.callback_metrics["train_loss"])
+
+
+def test_fit_ends_with_the_run_folder_and_the_next_command_and_no_tips(tmp_path, capsys, caplog):
+    config = tiny_config(tmp_path / "tiny.yaml", batch_size=2)
+    assert lightning_main(["fit", "--config", str(config)]) == 0
+    out = capsys.readouterr().out
+    run = Path("logs/block-insertion/mira/version_0")
+    assert f"run folder: {run}" in out
+    (checkpoint,) = (run / "checkpoints").glob("*.ckpt")
+    assert f"next: lightning test --config {run / 'config.yaml'} --ckpt_path {checkpoint}" in out
+    assert "Tip:" not in caplog.text

@@ -11,6 +11,7 @@ import torch
 from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from tensorboard.plugins.hparams import plugin_data_pb2
 from torch.utils.data import DataLoader
 
 from nerf_transporter.data.generate import GenerationConfig
@@ -78,7 +79,7 @@ def fitted(tmp_path):
     )
     trainer = pl.Trainer(
         max_steps=2,
-        logger=TensorBoardLogger(tmp_path, name="logs"),
+        logger=TensorBoardLogger(tmp_path, name="logs", default_hp_metric=False),  # as the CLI's
         callbacks=[callback, checkpoint],
         enable_progress_bar=False,
         enable_model_summary=False,
@@ -111,6 +112,20 @@ def test_callback_evaluates_two_episodes_and_logs_rate_interval_and_count(fitted
     # ModelCheckpoint monitored the validation success rate
     assert checkpoint.best_model_score.item() == pytest.approx(rate)
     assert checkpoint.best_model_path.endswith(f"step2-success{rate:.2f}.ckpt")
+
+
+def test_hparams_tab_compares_methods_by_validation_success(fitted):
+    trainer, model, checkpoint = fitted
+    events = EventAccumulator(trainer.logger.log_dir).Reload()
+    content = events.PluginTagToContent("hparams")
+    data = [plugin_data_pb2.HParamsPluginData.FromString(raw) for raw in content.values()]
+    experiment = next(d.experiment for d in data if d.HasField("experiment"))
+    session = next(d.session_start_info for d in data if d.HasField("session_start_info"))
+    assert [info.name.tag for info in experiment.metric_infos] == ["eval/success_rate"]
+    assert session.hparams["method"].string_value == "tiny"
+    assert session.hparams["task"].string_value == "block-insertion"
+    assert session.hparams["max_steps"].number_value == 2
+    assert "hp_metric" not in events.Tags()["scalars"]
 
 
 def test_lightning_test_writes_results_beside_the_checkpoint(fitted, tmp_path, capsys):

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import importlib
 import itertools
+import logging
 import pickle
 import re
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -147,6 +149,8 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
 
     from nerf_transporter.methods import Method
 
+    quiet_lightning()
+
     class RunConfigCallback(SaveConfigCallback):
         """Saves the resolved config in the run folder as `config.yaml`, or, where a resumed fit or
         a test of the run's checkpoint finds one, as `config-<stage>[-N].yaml` beside it."""
@@ -181,13 +185,18 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
             elif self.subcommand is not None and ckpt_path:
                 folder = run_folder(str(ckpt_path))
             if folder is not None:
-                return TensorBoardLogger(save_dir=folder.parent, name="", version=folder.name)
+                return TensorBoardLogger(
+                    save_dir=folder.parent, name="", version=folder.name, default_hp_metric=False
+                )
             # other DDP processes leave the folder to rank 0 (Lightning broadcasts its log_dir);
             # a CLI built without running (run=False) claims nothing
             claim = self.subcommand is not None and rank_zero_only.rank == 0
             version = claim_version(runs) if claim else None
             return TensorBoardLogger(
-                save_dir=LOG_ROOT, name=str(runs.relative_to(LOG_ROOT)), version=version
+                save_dir=LOG_ROOT,
+                name=str(runs.relative_to(LOG_ROOT)),
+                version=version,
+                default_hp_metric=False,
             )
 
     return NerfTransporterCLI(
@@ -212,6 +221,44 @@ def free_name(folder: Path, stem: str, stage: str) -> str:
     return next(name for name in names if not (folder / name).exists())
 
 
+def fit_summary(trainer: Any) -> str:
+    """Where a finished fit left its run, its best checkpoint and the command that tests it."""
+    from lightning.pytorch.cli import SaveConfigCallback
+
+    folder = Path(trainer.log_dir or ".")
+    lines = [f"run folder: {folder}"]
+    checkpoint = trainer.checkpoint_callback
+    best = getattr(checkpoint, "best_model_path", "") or getattr(checkpoint, "last_model_path", "")
+    if best:
+        score = getattr(checkpoint, "best_model_score", None)
+        monitor = getattr(checkpoint, "monitor", None)
+        chosen = f" ({monitor} {float(score):.2f})" if monitor and score is not None else ""
+        lines.append(f"best checkpoint{chosen}: {best}")
+        saved = [c for c in trainer.callbacks if isinstance(c, SaveConfigCallback)]
+        config = folder / saved[0].config_filename if saved else Path("<config>")
+        lines.append(f"next: lightning test --config {config} --ckpt_path {best}")
+    return "\n".join(lines)
+
+
+def quiet_lightning() -> None:
+    """Drop Lightning's advertising tips and warnings that do not apply to this project's runs."""
+
+    class NoTips(logging.Filter):
+        def filter(self, record: logging.LogRecord) -> bool:
+            return "Tip:" not in record.getMessage()
+
+    for name in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.rank_zero"):
+        logger = logging.getLogger(name)
+        if not any(isinstance(f, NoTips) for f in logger.filters):
+            logger.addFilter(NoTips())
+    # Lightning's own use of a torch API it deprecated; nothing a user can change
+    warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\)")
+    # in-memory demonstrations: loader workers do not pay on a CPU (set data.num_workers on a GPU)
+    warnings.filterwarnings("ignore", message=r".*does not have many workers")
+    # validation losses are optional (data.n_val_demos); success is measured closed loop
+    warnings.filterwarnings("ignore", message=r".*but have no `val_dataloader`")
+
+
 def lightning_main(args: list[str] | None = None) -> int:
     """The `lightning` console script: `lightning fit|validate|test|predict ...`.
 
@@ -232,6 +279,8 @@ def lightning_main(args: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
+    if cli.subcommand == "fit" and cli.trainer.is_global_zero:
+        print(fit_summary(cli.trainer))
     record = getattr(cli.model, "test_record", None)
     if record is not None and record["errors"]:
         print(f"lightning test: {erred_seeds_line(record)}", file=sys.stderr)

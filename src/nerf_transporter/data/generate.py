@@ -524,13 +524,16 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="nerf-transporter generate",
         description="Generate oracle demonstrations with their captures and imagery.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("--task", required=True)
-    parser.add_argument("--setting", default="normal")
-    parser.add_argument("--split", default="train", choices=SPLITS)
+    parser.add_argument("--task", required=True, choices=sorted(TASKS), help="task family")
+    parser.add_argument("--setting", default="normal", choices=SETTINGS, help="target tilts")
+    parser.add_argument("--split", default="train", choices=SPLITS, help="seed range")
     parser.add_argument("--episodes", type=int, required=True, help="successful episodes wanted")
-    parser.add_argument("--imagery", default="nerf", choices=IMAGERY_KINDS)
-    parser.add_argument("--data-dir", default="data")
+    parser.add_argument(
+        "--imagery", default="nerf", choices=IMAGERY_KINDS, help="NeRF fit or simulator views"
+    )
+    parser.add_argument("--data-dir", default="data", help="datasets go in <data-dir>/<name>")
     parser.add_argument("--workers", type=int, default=1, help="processes")
     parser.add_argument(
         "--shard", default="0/1", help="i/n: this machine takes seed indices k %% n == i"
@@ -554,7 +557,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="first delete the dataset's episodes, failed seeds and dataset.json (e.g. after the "
         "world changed); with --shard, pass it to one shard only, before the others start",
     )
-    parser.add_argument("--no-progress", action="store_true")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
 

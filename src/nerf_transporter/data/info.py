@@ -86,7 +86,11 @@ def format_summary(summary: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="nerf-transporter dataset-info", description=__doc__)
+    parser = argparse.ArgumentParser(
+        prog="nerf-transporter dataset-info",
+        description=__doc__,
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     parser.add_argument(
         "dataset", help="a dataset directory, e.g. data/block-insertion-normal-train"
     )

@@ -22,6 +22,7 @@ import numpy as np
 from lightning.pytorch.callbacks import Callback
 from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_info
+from torch.utils.tensorboard.summary import hparams as hparams_summary
 from torchmetrics.aggregation import SumMetric
 
 from nerf_transporter.evaluation.metrics import SuccessRate, wilson_interval
@@ -33,6 +34,9 @@ from nerf_transporter.evaluation.rollout import (
 )
 from nerf_transporter.splits import split_seed
 
+# settings shown in TensorBoard's HParams tab, where the method / DataModule has them
+MODEL_HPARAMS = ("lr", "width", "pixel_size", "n_rotations", "crop_size")
+DATA_HPARAMS = ("n_demos", "batch_size", "n_negative_views", "augment")
 SUCCESS_COLOUR = np.array([40, 200, 40], dtype=np.uint8)
 FAILURE_COLOUR = np.array([220, 40, 40], dtype=np.uint8)
 
@@ -156,7 +160,37 @@ class SuccessRateCallback(Callback):
                     "eval/rollouts", strip, trainer.global_step, dataformats="HWC"
                 )
 
+    def hyperparameters(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> dict:
+        """What the HParams tab compares runs by: method, task, setting, budget, key settings."""
+        spec = self._get_evaluator(trainer).spec
+        params = {
+            "method": str(getattr(pl_module, "name", type(pl_module).__name__)),
+            "task": spec.task,
+            "setting": spec.setting,
+            "imagery": spec.imagery
+            if getattr(pl_module, "input_kind", None) == "imagery"
+            else None,
+            "max_steps": trainer.max_steps,
+            "validation_episodes": self.episodes,
+        }
+        params |= {key: pl_module.hparams.get(key) for key in MODEL_HPARAMS}
+        params |= {key: getattr(trainer.datamodule, key, None) for key in DATA_HPARAMS}
+        return {key: value for key, value in params.items() if value is not None}
+
     # -- hooks --------------------------------------------------------------------------------
+
+    def on_fit_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        """Declare `eval/success_rate` as the HParams metric of this run, beside its settings (the
+        HParams tab then reads the metric from the evaluations' scalars)."""
+        loggers = [lg for lg in trainer.loggers if isinstance(lg, TensorBoardLogger)]
+        if not loggers or not trainer.is_global_zero:
+            return
+        params = self.hyperparameters(trainer, pl_module)
+        summaries = hparams_summary(params, {"eval/success_rate": 0.0})  # names only, no value
+        for logger in loggers:
+            writer = logger.experiment._get_file_writer()  # as TensorBoardLogger.log_hyperparams
+            for summary in summaries:
+                writer.add_summary(summary)
 
     def on_train_batch_end(
         self,

@@ -109,12 +109,15 @@ def main(argv: list[str] | None = None) -> int:
         prog="nerf-transporter report",
         description="Print the success-rate table (rate% (episodes, 95% Wilson CI)) from the "
         "results files (results*.json) that `lightning test` wrote under the given directories.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("roots", nargs="*", type=Path, default=[Path("logs")], help="log dirs")
+    parser.add_argument(
+        "roots", nargs="*", default=["logs"], help="folders searched for results*.json"
+    )
     parser.add_argument("--csv", action="store_true", help="CSV instead of a markdown table")
     args = parser.parse_args(argv)
     try:
-        records = load_results(args.roots)
+        records = load_results([Path(root) for root in args.roots])
     except (FileNotFoundError, ValueError) as error:
         print(f"nerf-transporter report: {error}", file=sys.stderr)
         return 1
