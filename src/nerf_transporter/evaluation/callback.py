@@ -3,8 +3,9 @@
 Configured in the YAML under `trainer.callbacks`; every `every_n_steps` optimiser steps and at the end
 of fit it runs `episodes` validation episodes (`splits.split_seed("validation", i)`) and logs
 `eval/success_rate`, its 95% Wilson interval (`eval/success_rate_low`, `eval/success_rate_high`) and
-`eval/episodes`, plus an image strip of the first rollouts (top-down view before and after the action,
-framed green on success and red on failure). `ModelCheckpoint(monitor="eval/success_rate")` with the
+`eval/episodes`, plus an image strip of the first rollouts (top-down view before the action with the
+chosen pick and place drawn in, and after it; captioned with the seed and the outcome or its reason,
+framed lime on success, magenta on failure, grey on error). `ModelCheckpoint(monitor="eval/success_rate")` with the
 same `every_n_train_steps` keeps the checkpoints with the best validation success (the Transporter
 authors' protocol). Under DDP the seeds are shared out among the processes and the counts summed.
 
@@ -25,6 +26,8 @@ from lightning.pytorch.utilities import rank_zero_info
 from torch.utils.tensorboard.summary import hparams as hparams_summary
 from torchmetrics.aggregation import SumMetric
 
+from nerf_transporter import geometry
+from nerf_transporter.drawing import captioned, draw_marker
 from nerf_transporter.evaluation.metrics import SuccessRate, wilson_interval
 from nerf_transporter.evaluation.rollout import (
     DEFAULT_CACHE_DIR,
@@ -37,25 +40,41 @@ from nerf_transporter.splits import split_seed
 # settings shown in TensorBoard's HParams tab, where the method / DataModule has them
 MODEL_HPARAMS = ("lr", "width", "pixel_size", "n_rotations", "crop_size")
 DATA_HPARAMS = ("n_demos", "batch_size", "n_negative_views", "augment")
-SUCCESS_COLOUR = np.array([40, 200, 40], dtype=np.uint8)
-FAILURE_COLOUR = np.array([220, 40, 40], dtype=np.uint8)
+# frame colours chosen apart from every object colour of the tasks (sim/assets.py COLORS)
+OUTCOME_COLOURS = {
+    "success": np.array([128, 255, 0], dtype=np.uint8),  # lime
+    "failure": np.array([255, 0, 255], dtype=np.uint8),  # magenta
+    "error": np.array([110, 110, 110], dtype=np.uint8),  # grey
+}
 
 
-def rollout_strip(results: list[EpisodeResult], border: int = 4) -> np.ndarray | None:
-    """One column per recorded episode (before above after), framed by outcome; HWC uint8."""
-    columns = []
-    for result in results:
-        if result.frames is None:
-            continue
-        column = np.concatenate(list(result.frames), axis=0)
-        colour = SUCCESS_COLOUR if result.success else FAILURE_COLOUR
-        framed = np.empty(
-            (column.shape[0] + 2 * border, column.shape[1] + 2 * border, 3), dtype=np.uint8
-        )
-        framed[:] = colour
-        framed[border:-border, border:-border] = column
-        columns.append(framed)
-    return np.concatenate(columns, axis=1) if columns else None
+def rollout_column(result: EpisodeResult, border: int = 4) -> np.ndarray:
+    """One recorded episode: caption (seed, outcome or why not), the top-down view before the
+    action with its pick (ring) and place (cross) drawn in, the view after; framed by outcome."""
+    before, after = (np.array(frame) for frame in result.frames)
+    if result.action is not None:
+        pixel_size = (geometry.BOUNDS[0, 1] - geometry.BOUNDS[0, 0]) / before.shape[1]
+        for name, kind in (("pick", "ring"), ("place", "cross")):
+            pixel = geometry.world_to_pixel(np.array(result.action[name][:3]), pixel_size)
+            draw_marker(before, pixel, kind)
+    outcome = "success" if result.success else result.failure_text() or result.outcome
+    column = captioned(np.concatenate([before, after], axis=0), [f"seed {result.seed}", outcome])
+    framed = np.empty(
+        (column.shape[0] + 2 * border, column.shape[1] + 2 * border, 3), dtype=np.uint8
+    )
+    framed[:] = OUTCOME_COLOURS[result.outcome]
+    framed[border:-border, border:-border] = column
+    return framed
+
+
+def rollout_strip(results: list[EpisodeResult]) -> np.ndarray | None:
+    """The recorded episodes side by side (`rollout_column`), bottom-aligned; HWC uint8."""
+    columns = [rollout_column(result) for result in results if result.frames is not None]
+    if not columns:
+        return None
+    height = max(column.shape[0] for column in columns)
+    padded = [np.pad(column, ((height - column.shape[0], 0), (0, 0), (0, 0))) for column in columns]
+    return np.concatenate(padded, axis=1)
 
 
 class SuccessRateCallback(Callback):

@@ -11,6 +11,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 
 from nerf_transporter import geometry as g
 from nerf_transporter.data.preprocess import COLOUR_MEAN, COLOUR_STD, network_input
+from nerf_transporter.drawing import heatmap_picture
 from nerf_transporter.evaluation.testing import ClosedLoopTest
 from nerf_transporter.models import Attention, Transport, pixel_cross_entropy
 from nerf_transporter.models.transport import placement_cross_entropy, unravel_argmax
@@ -106,14 +107,20 @@ class Method(ClosedLoopTest, L.LightningModule):
                 logger.experiment.add_image(f"heatmap/{name}", image.cpu(), self.global_step)
 
 
-def overlay(image: torch.Tensor, heat: torch.Tensor) -> torch.Tensor:
-    """Network input [6, H, W] and a heatmap [H, W] -> RGB [3, H, W]: colour dimmed, heat in red."""
-    colour = (image[:3] * COLOUR_STD + COLOUR_MEAN).clamp(0, 1)
-    heat = heat - heat.min()
-    heat = heat / heat.max().clamp(min=1e-12)
-    out = 0.5 * colour
-    out[0] = out[0] + 0.5 * heat
-    return out.clamp(0, 1)
+def overlay(
+    image: torch.Tensor, heat: torch.Tensor, label: torch.Tensor | None = None, title: str = ""
+) -> torch.Tensor:
+    """Network input [6, H, W] and a heatmap [H, W] -> RGB picture [3, H', W'] in [0, 1]: the heat
+    in a colormap over the greyed scene, the label pixel (row, col) ringed, a colour bar
+    (`drawing.heatmap_picture`)."""
+    colour = (image[:3] * COLOUR_STD + COLOUR_MEAN).clamp(0, 1).mul(255).byte()
+    picture = heatmap_picture(
+        colour.permute(1, 2, 0).cpu().numpy(),
+        heat.detach().float().cpu().numpy(),
+        None if label is None else label.tolist(),
+        title,
+    )
+    return torch.from_numpy(picture).permute(2, 0, 1).float() / 255.0
 
 
 def softmax_map(logits: torch.Tensor) -> torch.Tensor:
@@ -177,15 +184,20 @@ class AttentionTransportMethod(Method):
     def pick_place_heatmaps(
         self, pick_image: torch.Tensor, place_image: torch.Tensor, batch: Batch
     ) -> dict[str, torch.Tensor]:
-        """Pick heatmap and place heatmap (max over rotations) of the first sample."""
-        pick_logits = self.attention(pick_image[:1])[0]
+        """Pick heatmap and place heatmap (max over rotations) of the first sample, labels ringed."""
         place_logits = self.transport(
             pick_image[:1], batch["pick_pixel"][:1], place_image[:1, None]
         )
+        place_heat = softmax_map(place_logits[0, 0]).amax(0)
         return {
-            "pick": overlay(pick_image[0], softmax_map(pick_logits)),
-            "place": overlay(place_image[0], softmax_map(place_logits[0, 0]).amax(0)),
+            "pick": self.pick_heatmap(pick_image, batch),
+            "place": overlay(place_image[0], place_heat, batch["place_pixel"][0], "place"),
         }
+
+    def pick_heatmap(self, pick_image: torch.Tensor, batch: Batch) -> torch.Tensor:
+        """The attention's pick probabilities over the first sample, its label ringed."""
+        heat = softmax_map(self.attention(pick_image[:1])[0])
+        return overlay(pick_image[0], heat, batch["pick_pixel"][0], "pick")
 
     def predict_pick(self, image: torch.Tensor) -> tuple[int, int]:
         """Argmax pixel (row, col) of the attention logits of one image [1, 6, H, W]."""

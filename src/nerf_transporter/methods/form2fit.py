@@ -66,8 +66,12 @@ class Form2Fit(Method):
     def heatmaps(self, batch: Batch) -> dict[str, torch.Tensor]:
         image = batch["image"][:1]
         return {
-            "pick": overlay(image[0], softmax_map(self.nets.pick(image)[0])),
-            "place": overlay(image[0], softmax_map(self.nets.place(image)[0])),
+            "pick": overlay(
+                image[0], softmax_map(self.nets.pick(image)[0]), batch["pick_pixel"][0], "pick"
+            ),
+            "place": overlay(
+                image[0], softmax_map(self.nets.place(image)[0]), batch["place_pixel"][0], "place"
+            ),
         }
 
     @torch.no_grad()

@@ -17,6 +17,8 @@ from nerf_transporter.methods.base import (
     AttentionTransportMethod,
     Batch,
     check_image_shape,
+    overlay,
+    softmax_map,
 )
 from nerf_transporter.models.transport import correlate_spectrum, kernel_spectrum
 
@@ -61,7 +63,22 @@ class Mira(AttentionTransportMethod):
         return self.pick_place_losses(batch["pick_image"], batch["place_images"], batch)
 
     def heatmaps(self, batch: Batch) -> dict[str, torch.Tensor]:
-        return self.pick_place_heatmaps(batch["pick_image"], batch["place_images"][:, 0], batch)
+        """Pick heatmap; place heatmaps (max over rotations, one softmax over all the sample's
+        views as in training) of the true view ("place") and of the view the model would choose."""
+        pick_image, views = batch["pick_image"][:1], batch["place_images"][:1]
+        place = softmax_map(self.transport(pick_image, batch["pick_pixel"][:1], views)[0]).amax(1)
+        chosen = int(place.flatten(1).amax(1).argmax())
+        label = batch["place_pixel"][0]
+        return {
+            "pick": self.pick_heatmap(pick_image, batch),
+            "place": overlay(views[0, 0], place[0], label, "true view"),
+            "place_chosen_view": overlay(
+                views[0, chosen],
+                place[chosen],
+                label if chosen == 0 else None,
+                "chosen: the true view" if chosen == 0 else f"chosen: negative view {chosen}",
+            ),
+        }
 
     @torch.no_grad()
     def act(self, observation: dict[str, Any]) -> Action:

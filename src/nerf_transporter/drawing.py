@@ -1,0 +1,96 @@
+"""Pictures for people (TensorBoard images, rollout strips): a heatmap in a colormap over the greyed
+scene with a colour bar, markers for labels and actions, and captions. RGB uint8 [H, W, 3] in and
+out; nothing here knows about tasks or models.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+
+Colour = tuple[int, int, int]
+MARKER: Colour = (255, 255, 255)  # labels and actions: white with a black outline
+CAPTION_BACKGROUND: Colour = (30, 30, 30)
+CAPTION_TEXT: Colour = (235, 235, 235)
+FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+
+def _colormap(values: np.ndarray) -> np.ndarray:
+    """Values in [0, 1] -> RGB uint8 in the viridis colormap (dark blue low, yellow high)."""
+    indices = np.clip(np.round(values * 255), 0, 255).astype(np.uint8)
+    return cv2.applyColorMap(indices, cv2.COLORMAP_VIRIDIS)[..., ::-1]
+
+
+def greyed(colour: np.ndarray) -> np.ndarray:
+    """The scene in dimmed grey, so that a colormap drawn over it stands out."""
+    grey = cv2.cvtColor(np.ascontiguousarray(colour), cv2.COLOR_RGB2GRAY)
+    return np.repeat((0.35 * grey + 40)[..., None], 3, axis=2).astype(np.uint8)
+
+
+def draw_marker(image: np.ndarray, pixel: Sequence[float], kind: str = "ring") -> np.ndarray:
+    """Draw a ring ("ring") or a cross ("cross") centred on pixel (row, col), in place."""
+    row, col = (int(round(float(v))) for v in pixel)
+    size = max(3, min(image.shape[:2]) // 25)
+    for colour, thickness in (((0, 0, 0), 3), (MARKER, 1)):
+        if kind == "ring":
+            cv2.circle(image, (col, row), size, colour, thickness, cv2.LINE_AA)
+        else:
+            cv2.drawMarker(image, (col, row), colour, cv2.MARKER_TILTED_CROSS, 2 * size, thickness)
+    return image
+
+
+def _text_scale(width: int) -> float:
+    return max(0.3, min(0.5, width / 480))
+
+
+def wrap_text(text: str, width: int, scale: float) -> list[str]:
+    """Words of `text` in lines that fit `width` pixels at font `scale`."""
+    lines: list[str] = []
+    for word in text.split():
+        candidate = f"{lines[-1]} {word}" if lines else word
+        if lines and cv2.getTextSize(candidate, FONT, scale, 1)[0][0] <= width - 4:
+            lines[-1] = candidate
+        else:
+            lines.append(word)
+    return lines or [""]
+
+
+def captioned(
+    image: np.ndarray, texts: Sequence[str], text_colour: Colour = CAPTION_TEXT
+) -> np.ndarray:
+    """`image` under a dark band holding `texts`, each wrapped to the image's width."""
+    width = image.shape[1]
+    scale = _text_scale(width)
+    lines = [line for text in texts for line in wrap_text(text, width, scale)]
+    line_height = int(cv2.getTextSize("Ag", FONT, scale, 1)[0][1] * 1.8) + 2
+    band = np.empty((line_height * len(lines) + 4, width, 3), dtype=np.uint8)
+    band[:] = CAPTION_BACKGROUND
+    for number, line in enumerate(lines):
+        baseline = (number + 1) * line_height - 2
+        cv2.putText(band, line, (2, baseline), FONT, scale, text_colour, 1, cv2.LINE_AA)
+    return np.concatenate([band, image], axis=0)
+
+
+def heatmap_picture(
+    colour: np.ndarray,
+    heat: np.ndarray,
+    label: Sequence[float] | None = None,
+    title: str = "",
+) -> np.ndarray:
+    """A heatmap (any non-negative values, e.g. probabilities) over the greyed scene, the label
+    pixel (row, col) ringed, and a colour bar from 0 (bottom) to the heatmap's maximum (top)
+    whose value the caption gives."""
+    heat = np.asarray(heat, dtype=np.float64)
+    top = float(heat.max()) if heat.size else 0.0
+    normalised = heat / top if top > 0 else np.zeros_like(heat)
+    picture = (0.45 * greyed(colour) + 0.55 * _colormap(normalised)).astype(np.uint8)
+    if label is not None:
+        draw_marker(picture, label)
+    height = picture.shape[0]
+    bar_width = max(6, picture.shape[1] // 16)
+    gradient = np.linspace(1.0, 0.0, height)[:, None].repeat(bar_width, axis=1)
+    gap = np.full((height, 2, 3), 255, dtype=np.uint8)
+    body = np.concatenate([picture, gap, _colormap(gradient)], axis=1)
+    return captioned(body, [f"{title} max {top:.2g}".strip()])
