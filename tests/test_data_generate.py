@@ -4,11 +4,7 @@ real simulator."""
 import json
 import math
 import os
-import signal
 import socket
-import subprocess
-import sys
-import time
 
 import numpy as np
 import pytest
@@ -445,38 +441,3 @@ def test_corrupt_failed_record_is_named_and_nothing_written(fake_world, tmp_path
     assert error.startswith(f"nerf-transporter generate: failed-seed record {record} is corrupt")
     assert "delete it" in error
     assert sorted(p.relative_to(dataset) for p in dataset.rglob("*")) == before
-
-
-WORKER_PROBE = """
-import os, time
-from nerf_transporter.data import generate as gen
-pool = gen._executor(2)
-print(pool.submit(os.getpid).result(), flush=True)
-time.sleep(60)
-"""
-
-
-def _process_running(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as stat:
-            return stat.read().rpartition(")")[2].split()[0] != "Z"  # a zombie has ended
-    except FileNotFoundError:
-        return False
-
-
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="parent-death signal is Linux's")
-def test_workers_die_with_a_killed_parent():
-    parent = subprocess.Popen([sys.executable, "-c", WORKER_PROBE], stdout=subprocess.PIPE)
-    worker = int(parent.stdout.readline())
-    try:
-        assert _process_running(worker)
-        parent.kill()  # SIGKILL: no clean-up in the parent
-        parent.wait()
-        deadline = time.monotonic() + 10
-        while _process_running(worker) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert not _process_running(worker)
-    finally:
-        if _process_running(worker):
-            os.kill(worker, signal.SIGKILL)
-        parent.stdout.close()

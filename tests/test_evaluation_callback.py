@@ -49,10 +49,15 @@ class TinyStateMethod(ClosedLoopTest, pl.LightningModule):
 
 
 class TinyData(pl.LightningDataModule):
-    """Stands in for RavensDataModule: its generation config, a few batches and two test seeds."""
+    """Stands in for RavensDataModule: its generation config, a few batches and two test seeds
+    (run in this process unless `test_workers` says otherwise)."""
 
     setting = "normal"
     test_setting = "challenging"
+
+    def __init__(self, test_workers=1):
+        super().__init__()
+        self.test_workers = test_workers
 
     def generation_config(self, split, imagery=None):
         return GenerationConfig("block-insertion", "normal", split, imagery or "oracle")
@@ -67,7 +72,11 @@ class TinyData(pl.LightningDataModule):
 @pytest.fixture
 def fitted(tmp_path):
     callback = SuccessRateCallback(
-        every_n_steps=2, episodes=2, cache_dir=str(tmp_path / "cache"), strip_episodes=1
+        every_n_steps=2,
+        episodes=2,
+        cache_dir=str(tmp_path / "cache"),
+        strip_episodes=1,
+        eval_workers=1,  # in this process, where act_calls are recorded
     )
     checkpoint = ModelCheckpoint(
         dirpath=tmp_path / "checkpoints",
@@ -133,7 +142,8 @@ def test_lightning_test_writes_results_beside_the_checkpoint(fitted, tmp_path, c
     trainer, model, checkpoint = fitted
     ckpt = checkpoint.best_model_path
     tester = pl.Trainer(logger=False, enable_progress_bar=False, accelerator="cpu")
-    metrics = tester.test(model, datamodule=TinyData(), ckpt_path=ckpt)[0]
+    # the two test episodes run in two worker processes
+    metrics = tester.test(model, datamodule=TinyData(test_workers=2), ckpt_path=ckpt)[0]
     # one file per checkpoint; tested in another setting than trained in: the name says which
     results = json.loads(
         (Path(ckpt).parent / f"results-{Path(ckpt).stem}-challenging.json").read_text()

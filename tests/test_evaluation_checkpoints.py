@@ -4,6 +4,7 @@ import json
 import logging
 from pathlib import Path
 
+import pytest
 import torch
 from lightning.pytorch.cli import LightningCLI
 from torch.utils.data import DataLoader
@@ -68,7 +69,7 @@ def test_every_checkpoint_of_a_run_is_evaluated_and_the_best_named(
 
     argv = [str(run), "--split", "validation", "--episodes", "2", "--cache-dir", str(tmp_path)]
     with caplog.at_level(logging.WARNING):
-        assert cli_main(["evaluate-checkpoints", *argv, "--json"]) == 0
+        assert cli_main(["evaluate-checkpoints", *argv, "--json", "--eval-workers", "2"]) == 0
     # the unreadable and the unsafe checkpoints were skipped, named, and never unpickled
     assert "skipping unreadable checkpoint" in caplog.text
     assert "truncated.ckpt" in caplog.text and "pickled.ckpt" in caplog.text
@@ -85,10 +86,17 @@ def test_every_checkpoint_of_a_run_is_evaluated_and_the_best_named(
         seeds = [episode["seed"] for episode in record["episode_results"]]
         assert seeds == [1_000_000, 1_000_001]
     # evaluating again adds files beside the first ones: nothing is replaced
-    assert cli_main(["evaluate-checkpoints", *argv]) == 0
+    assert cli_main(["evaluate-checkpoints", *argv, "--eval-workers", "1"]) == 0
     assert (run / "evaluation" / "step2-validation-normal-2.json").is_file()
 
 
 def test_a_run_without_checkpoints_is_an_error(tmp_path, capsys):
     assert cli_main(["evaluate-checkpoints", str(tmp_path)]) == 1
     assert "no readable .ckpt files" in capsys.readouterr().err
+
+
+def test_eval_workers_must_be_positive(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli_main(["evaluate-checkpoints", str(tmp_path), "--eval-workers", "0"])
+    assert exit_info.value.code == 2
+    assert "--eval-workers must be >= 1" in capsys.readouterr().err

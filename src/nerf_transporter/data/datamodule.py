@@ -219,8 +219,10 @@ class RavensDataModule(pl.LightningDataModule):
     that prints the `nerf-transporter generate` command to run. `input_kind` is read from the model
     being trained (`trainer.lightning_module.input_kind`), or from the argument without a trainer.
     Closed-loop success rates are measured by the evaluation code: the test dataloader yields the
-    first `test_episodes` test seeds, run in `test_setting` (default: `setting`). `pin_memory` puts
-    batches in page-locked memory for a faster copy to a GPU (with `num_workers` loading them).
+    first `test_episodes` test seeds, run in `test_setting` (default: `setting`) by `test_workers`
+    worker processes (default: one per core available to the process; 1: in the process itself).
+    `pin_memory` puts batches in page-locked memory for a faster copy to a GPU (with `num_workers`
+    loading them).
 
     Methods that do not use imagery (heightmap, state) read any existing dataset of the task with
     the configured imagery, else one generated with `imagery="oracle"`: their inputs (RGB-D, state)
@@ -252,12 +254,15 @@ class RavensDataModule(pl.LightningDataModule):
         generate_workers: int = 1,
         test_episodes: int = 100,
         test_setting: str | None = None,
+        test_workers: int | None = None,
         pin_memory: bool = False,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
         if n_demos < 1:
             raise ValueError(f"n_demos must be >= 1, got {n_demos}")
+        if test_workers is not None and test_workers < 1:
+            raise ValueError(f"test_workers must be >= 1, got {test_workers}")
         n_views = len(g.view_grid(setting))
         if not 0 <= n_negative_views < n_views:
             raise ValueError(f"n_negative_views must be in [0, {n_views - 1}] for {n_views} views")
@@ -282,6 +287,7 @@ class RavensDataModule(pl.LightningDataModule):
         self.nerf_views, self.nerf_image_size = nerf_views, tuple(nerf_image_size)
         self.imagery_config, self.generate_workers = dict(imagery_config or {}), generate_workers
         self.test_episodes, self.test_setting = test_episodes, test_setting
+        self.test_workers = test_workers
         self.pin_memory = pin_memory
         self.train_dataset: DemoDataset | None = None
         self.val_dataset: DemoDataset | None = None

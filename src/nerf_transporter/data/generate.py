@@ -22,12 +22,9 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
-import ctypes
 import dataclasses
 import math
-import multiprocessing
 import os
-import signal
 import sys
 import time
 from collections.abc import Iterator
@@ -41,6 +38,7 @@ from tqdm.auto import tqdm
 from nerf_transporter import geometry as g
 from nerf_transporter.data import episode as ep
 from nerf_transporter.data.labels import heightmap_labels, mira_labels
+from nerf_transporter.parallel import exit_if_orphaned, process_pool
 from nerf_transporter.sim import SETTINGS, TASKS, fingerprint
 from nerf_transporter.splits import SPLITS, split_seed
 
@@ -329,7 +327,7 @@ def generate_episode(
             "total": time.perf_counter() - start,
         },
     }
-    _exit_if_orphaned()
+    exit_if_orphaned()
     ep.write_episode(dataset_dir, index, seed, meta, arrays)
     return Outcome(index, seed, True, None, time.perf_counter() - start)
 
@@ -368,39 +366,8 @@ class _InlineExecutor(cf.Executor):
         return future
 
 
-PR_SET_PDEATHSIG = 1  # prctl option (linux/prctl.h): signal this process when its parent dies
-# In a worker process of `--workers N`: the generating process that started it.
-_PARENT_PID: int | None = None
-
-
-def _exit_if_orphaned() -> None:
-    """End this worker process now if the generating process that started it is gone."""
-    if _PARENT_PID is not None and os.getppid() != _PARENT_PID:
-        os._exit(1)
-
-
-def _init_worker(threads: int, parent: int) -> None:
-    """Worker set-up: torch threads, and dying with the generating process (even a kill -9 of it)."""
-    global _PARENT_PID
-    import torch
-
-    torch.set_num_threads(threads)
-    _PARENT_PID = parent
-    if sys.platform.startswith("linux"):
-        ctypes.CDLL(None).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    _exit_if_orphaned()  # the parent may have died before the death signal was set
-
-
 def _executor(workers: int) -> cf.Executor:
-    if workers <= 1:
-        return _InlineExecutor()
-    threads = max(1, (os.cpu_count() or 1) // workers)
-    return cf.ProcessPoolExecutor(
-        max_workers=workers,
-        mp_context=multiprocessing.get_context("spawn"),
-        initializer=_init_worker,
-        initargs=(threads, os.getpid()),
-    )
+    return _InlineExecutor() if workers <= 1 else process_pool(workers)
 
 
 def dataset_status(

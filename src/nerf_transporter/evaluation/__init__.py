@@ -1,6 +1,7 @@
 """Closed-loop evaluation (docs/conventions.md, "Evaluation protocol").
 
 - `rollout`: one test episode for any method (`Evaluator`, `EvaluationSpec`, `EpisodeResult`);
+- `workers`: the episodes of a round in worker processes, each with its own simulator and policy;
 - `cache`: evaluation imagery cached on disk by task, setting, seed and imagery config;
 - `metrics`: the `SuccessRate` torchmetrics metric and the 95% Wilson interval;
 - `callback`: `SuccessRateCallback`, validation success during training;

@@ -9,6 +9,10 @@ framed lime on success, magenta on failure, grey on error). `ModelCheckpoint(mon
 same `every_n_train_steps` keeps the checkpoints with the best validation success (the Transporter
 authors' protocol). Under DDP the seeds are shared out among the processes and the counts summed.
 
+The episodes run in `eval_workers` worker processes (default: the cores available to this process,
+its share under DDP), each with its own simulator and copy of the model, with the results of a serial
+run (`evaluation.workers`).
+
 Episodes that erred (imagery cache I/O, the imagery fit, ...: not the robot's doing) are left out of
 the rate and logged as `eval/errors`; a round with any error hands ModelCheckpoint a NaN success rate,
 which ranks below every real one, so checkpoint selection ignores that round.
@@ -35,6 +39,7 @@ from nerf_transporter.evaluation.rollout import (
     EvaluationSpec,
     Evaluator,
 )
+from nerf_transporter.parallel import share_cores
 from nerf_transporter.splits import split_seed
 
 # settings shown in TensorBoard's HParams tab, where the method / DataModule has them
@@ -84,6 +89,7 @@ class SuccessRateCallback(Callback):
     evaluation imagery must be built like the training imagery); `imagery: oracle` swaps in the
     simulator's ground-truth views. `strip_episodes` rollouts are drawn into the logged image strip.
     Imagery is cached under `cache_dir` per seed, so only the first evaluation fits NeRFs.
+    `eval_workers` processes run the episodes (None: one per available core, 1: in this process).
     """
 
     def __init__(
@@ -94,17 +100,21 @@ class SuccessRateCallback(Callback):
         setting: str | None = None,
         cache_dir: str | None = DEFAULT_CACHE_DIR,
         strip_episodes: int = 4,
+        eval_workers: int | None = None,
     ) -> None:
         if every_n_steps < 1:
             raise ValueError(f"every_n_steps must be >= 1, got {every_n_steps}")
         if episodes < 1:
             raise ValueError(f"episodes must be >= 1, got {episodes}")
+        if eval_workers is not None and eval_workers < 1:
+            raise ValueError(f"eval_workers must be >= 1, got {eval_workers}")
         self.every_n_steps = every_n_steps
         self.episodes = episodes
         self.imagery = imagery
         self.setting = setting
         self.cache_dir = cache_dir
         self.strip_episodes = strip_episodes
+        self.eval_workers = eval_workers
         self.metric = SuccessRate()
         self.error_count = SumMetric()  # erred episodes, summed over DDP processes
         self._evaluator: Evaluator | None = None
@@ -126,12 +136,16 @@ class SuccessRateCallback(Callback):
     def evaluate(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> dict[str, float]:
         """Run this process's share of the validation episodes; return the pooled figures."""
         indices = range(trainer.global_rank, self.episodes, trainer.world_size)
+        seeds = [split_seed("validation", index) for index in indices]
+        workers, threads = share_cores(len(seeds), self.eval_workers, trainer.num_devices)
         results = self._get_evaluator(trainer).run(
             pl_module,
-            [split_seed("validation", index) for index in indices],
+            seeds,
             progress=trainer.is_global_zero,
             desc=f"validation episodes at step {trainer.global_step}",
             record_frames=self.strip_episodes,
+            workers=workers,
+            threads=threads,
         )
         self.metric = self.metric.to(pl_module.device)
         self.metric.reset()

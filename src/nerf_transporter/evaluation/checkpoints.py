@@ -4,7 +4,8 @@ Checkpoint selection as the Transporter authors did it: save checkpoints at fixe
 one of them closed loop on the validation seeds, and test the best. Each checkpoint's figures go to
 `<run dir>/evaluation/<checkpoint>-<split>-<setting>.json` (`-2`, `-3`, ... when evaluated again:
 nothing is replaced); the command prints a table and the `lightning test` command for the best
-checkpoint, chosen among the evaluations without erred episodes. Models and DataModules are rebuilt
+checkpoint, chosen among the evaluations without erred episodes. The episodes run in `--eval-workers`
+processes (default: one per available core). Models and DataModules are rebuilt
 from the hyper-parameters inside the checkpoints (LightningCLI stores the method's class path
 there), and checkpoints are read with `weights_only=True`; an unreadable checkpoint is skipped with
 a warning.
@@ -28,6 +29,7 @@ from nerf_transporter.evaluation.testing import (
     results_record,
     write_new_json,
 )
+from nerf_transporter.parallel import share_cores
 from nerf_transporter.splits import split_seed
 
 log = logging.getLogger(__name__)
@@ -75,13 +77,16 @@ def evaluate_checkpoints(
     cache_dir: str | None = DEFAULT_CACHE_DIR,
     device: torch.device | None = None,
     progress: bool = True,
+    workers: int | None = None,
 ) -> list[dict]:
-    """Evaluate every checkpoint of a run on the first `episodes` seeds of `split`."""
+    """Evaluate every checkpoint of a run on the first `episodes` seeds of `split`, in `workers`
+    worker processes (default: one per available core; 1: in this process)."""
     checkpoints = checkpoint_steps(run_dir)
     if not checkpoints:
         raise FileNotFoundError(f"no readable .ckpt files under {run_dir}")
     device = device or torch.device("cuda" if torch.cuda.is_available() else "cpu")
     seeds = [split_seed(split, index) for index in range(episodes)]
+    workers, threads = share_cores(len(seeds), workers)
     records, evaluator = [], None
     try:
         for step, path in checkpoints:
@@ -98,7 +103,9 @@ def evaluate_checkpoints(
                     evaluator.close()
                 evaluator = Evaluator(spec)
             start = time.perf_counter()
-            results = evaluator.run(model, seeds, progress=progress, desc=path.name)
+            results = evaluator.run(
+                model, seeds, progress=progress, desc=path.name, workers=workers, threads=threads
+            )
             record = results_record(
                 [result.to_json() for result in results],
                 method=model,
@@ -138,10 +145,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--setting", help="default: the training setting")
     parser.add_argument("--cache-dir", default=DEFAULT_CACHE_DIR, help="imagery cache")
     parser.add_argument("--device", default=None, help="torch device (default: cuda if present)")
+    parser.add_argument(
+        "--eval-workers",
+        type=int,
+        default=None,
+        help="processes running the episodes (default: one per available core; 1: no workers)",
+    )
     parser.add_argument("--json", action="store_true", help="end with one JSON line")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error("--episodes must be >= 1")
+    if args.eval_workers is not None and args.eval_workers < 1:
+        parser.error("--eval-workers must be >= 1")
     try:
         records = evaluate_checkpoints(
             args.run_dir,
@@ -151,6 +166,7 @@ def main(argv: list[str] | None = None) -> int:
             setting=args.setting,
             cache_dir=args.cache_dir,
             device=torch.device(args.device) if args.device else None,
+            workers=args.eval_workers,
         )
     except (FileNotFoundError, ValueError) as error:
         print(f"nerf-transporter evaluate-checkpoints: {error}", file=sys.stderr)

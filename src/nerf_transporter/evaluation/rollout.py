@@ -2,7 +2,10 @@
 observation, `act`, execute the pick-and-place, judge (docs/conventions.md, "Evaluation protocol").
 
 Each `Evaluator` owns its environments, and every environment its own PyBullet client, so an
-evaluation never disturbs the simulator of data generation or of another evaluation.
+evaluation never disturbs the simulator of data generation or of another evaluation. An episode is a
+function of its seed, so `Evaluator.run(..., workers=N)` can share the episodes out among N worker
+processes, each with its own `Evaluator` and copy of the policy (`evaluation.workers`), with the
+results of a serial run.
 
 An episode ends in one of three outcomes. `success`: the task was achieved. `failure`: the robot
 acted and the task was not achieved (the object ended off its target pose, a pose was unreachable,
@@ -21,7 +24,7 @@ import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import torch
@@ -31,7 +34,11 @@ from nerf_transporter import geometry
 from nerf_transporter.data.generate import IMAGERY_RUNTIME_FIELDS, pose_error_text
 from nerf_transporter.data.heightmap import heightmap_from_rgbd
 from nerf_transporter.evaluation.cache import ImageryCache, config_hash
+from nerf_transporter.parallel import available_cores
 from nerf_transporter.sim.fingerprint import world_fingerprint
+
+if TYPE_CHECKING:
+    from nerf_transporter.evaluation.workers import EpisodeWorkers
 
 log = logging.getLogger(__name__)
 
@@ -232,6 +239,7 @@ class Evaluator:
         self.env_factory = env_factory
         self.cache = ImageryCache(spec.cache_dir) if spec.cache_dir is not None else None
         self._envs: dict[tuple[str, ...], Any] = {}
+        self._workers: EpisodeWorkers | None = None  # those of the last parallel run
 
     # -- environments -------------------------------------------------------------------------
 
@@ -256,8 +264,12 @@ class Evaluator:
             log.warning("closing a failed environment raised", exc_info=True)
 
     def close(self) -> None:
+        """Close the environments and stop the worker processes."""
         for rigs in list(self._envs):
             self._discard_env(rigs)
+        if self._workers is not None:
+            self._workers.close()
+            self._workers = None
 
     def __enter__(self) -> Evaluator:
         return self
@@ -410,18 +422,53 @@ class Evaluator:
         progress: bool = False,
         desc: str = "evaluation",
         record_frames: int = 0,
+        workers: int = 1,
+        threads: int | None = None,
     ) -> list[EpisodeResult]:
-        """Episodes for `seeds` in order, the first `record_frames` with frames; an optional
-        progress bar shows the successes (and errors) so far."""
-        seeds = list(seeds)
-        results: list[EpisodeResult] = []
-        with tqdm(seeds, desc=desc, unit="episode", disable=not progress) as bar:
-            for seed in bar:
-                frames = len(results) < record_frames
-                results.append(self.run_episode(method, int(seed), record_frames=frames))
-                errors = sum(r.error is not None for r in results)
-                bar.set_postfix(
-                    successes=sum(r.success for r in results),
-                    **({"errors": errors} if errors else {}),
-                )
-        return results
+        """Episodes for `seeds`, results in seed order, the first `record_frames` with frames; an
+        optional progress bar shows the successes (and errors) so far.
+
+        With `workers` > 1 (and more than one seed) the episodes run in that many worker processes
+        (`evaluation.workers`), each with `threads` torch threads (default: the available cores
+        shared among them), with the same results as in this process. The worker processes are
+        kept for the next run with as many workers, until `close`."""
+        seeds = [int(seed) for seed in seeds]
+        if workers < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
+        workers = min(workers, len(seeds)) or 1
+        successes, errors = 0, 0
+        with tqdm(total=len(seeds), desc=desc, unit="episode", disable=not progress) as bar:
+
+            def count(result: EpisodeResult) -> None:
+                nonlocal successes, errors
+                successes += result.success
+                errors += result.error is not None
+                bar.update(1)
+                bar.set_postfix(successes=successes, **({"errors": errors} if errors else {}))
+
+            if workers == 1:
+                results = []
+                for index, seed in enumerate(seeds):
+                    results.append(self.run_episode(method, seed, index < record_frames))
+                    count(results[-1])
+                return results
+            from nerf_transporter.evaluation.workers import policy_recipe  # imports this module
+
+            return self._worker_processes(workers, threads).run(
+                self.spec,
+                self.env_factory,
+                policy_recipe(method),
+                [(seed, index < record_frames) for index, seed in enumerate(seeds)],
+                count,
+            )
+
+    def _worker_processes(self, count: int, threads: int | None) -> EpisodeWorkers:
+        from nerf_transporter.evaluation.workers import EpisodeWorkers
+
+        threads = max(1, available_cores() // count) if threads is None else threads
+        workers = self._workers
+        if workers is None or (workers.count, workers.threads) != (count, threads):
+            if workers is not None:
+                workers.close()
+            self._workers = EpisodeWorkers(count, threads)
+        return self._workers

@@ -1,8 +1,9 @@
 """Closed-loop `trainer.test` (`lightning test --config ... --ckpt_path ...`).
 
-The DataModule's test dataloader yields episode seeds (`seed_loader`); the methods' base class mixes
-in `ClosedLoopTest`, whose `test_step` runs those episodes with an `Evaluator` and whose epoch end
-pools the outcomes (across DDP processes), logs `test/success_rate`, its 95% Wilson interval, the
+The DataModule's test dataloader yields episode seeds (`seed_loader`; under DDP each process gets
+its share); the methods' base class mixes in `ClosedLoopTest`, whose `test_step` collects them and
+whose epoch end runs them with an `Evaluator` in the DataModule's `test_workers` worker processes
+(default: one per core available to this process), pools the outcomes (across DDP processes), logs `test/success_rate`, its 95% Wilson interval, the
 episode count and the erred episodes (`test/errors`, not counted in the rate), and writes
 `results-<checkpoint>.json` beside the checkpoint (`results-<checkpoint>-<setting>.json` when the
 DataModule's `test_setting` differs from its training `setting`). A results file is never
@@ -26,6 +27,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from nerf_transporter.evaluation.metrics import summarize
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
+from nerf_transporter.parallel import share_cores
 from nerf_transporter.sim.fingerprint import world_fingerprint
 from nerf_transporter.splits import split_seed
 
@@ -163,17 +165,31 @@ class ClosedLoopTest:
     test_record: dict[str, Any] | None = None
 
     def on_test_epoch_start(self) -> None:
-        spec = EvaluationSpec.from_datamodule(self.trainer.datamodule, split="test")
-        self._closed_loop = (Evaluator(spec), [], time.perf_counter())
+        self._test_seeds: list[int] = []
+        self._test_start = time.perf_counter()
 
     def test_step(self, batch: torch.Tensor, batch_idx: int) -> None:
-        evaluator, results, _ = self._closed_loop
-        for seed in torch.as_tensor(batch).flatten().tolist():
-            results.append(evaluator.run_episode(self, int(seed)).to_json())
+        """Collect this process's seeds; they run together at the end of the epoch, so that the
+        worker processes share them out as they become free."""
+        self._test_seeds.extend(int(seed) for seed in torch.as_tensor(batch).flatten().tolist())
 
     def on_test_epoch_end(self) -> None:
-        evaluator, results, start = self._closed_loop
-        evaluator.close()
+        datamodule = self.trainer.datamodule
+        spec = EvaluationSpec.from_datamodule(datamodule, split="test")
+        seeds, start = self._test_seeds, self._test_start
+        workers, threads = share_cores(
+            len(seeds), getattr(datamodule, "test_workers", None), self.trainer.num_devices
+        )
+        with Evaluator(spec) as evaluator:
+            episodes = evaluator.run(
+                self,
+                seeds,
+                progress=self.trainer.is_global_zero,
+                desc="test episodes",
+                workers=workers,
+                threads=threads,
+            )
+        results = [episode.to_json() for episode in episodes]
         if self.trainer.world_size > 1:
             results = gather_json(self, results)
         checkpoint = self.trainer.ckpt_path
@@ -186,7 +202,7 @@ class ClosedLoopTest:
         record = results_record(
             results,
             method=self,
-            spec=evaluator.spec,
+            spec=spec,
             split="test",
             checkpoint=str(checkpoint) if checkpoint else None,
             global_step=step,
