@@ -8,6 +8,7 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import imageio.v2 as imageio
 import lightning.pytorch as pl
 import numpy as np
 import pytest
@@ -232,23 +233,59 @@ def test_ckpt_path_last_without_a_run_is_a_named_error(tmp_path, capsys):
     assert not list(Path("logs").rglob("events.out.tfevents.*"))
 
 
+def closed_loop_test_config(tmp_path) -> Path:
+    """The tiny mira on 2 block-insertion test episodes with oracle imagery, in this process."""
+    data_args = {**SIZE, "task": "block-insertion", "imagery": "oracle", "test_episodes": 2}
+    data_args.pop("crop_size"), data_args.pop("width")
+    config = tmp_path / "test.yaml"
+    config.write_text(
+        f"""trainer: {{accelerator: cpu, devices: 1, enable_progress_bar: false}}
+model: {{class_path: Mira, init_args: {SIZE}}}
+data:
+  class_path: nerf_transporter.data.datamodule.RavensDataModule
+  init_args: {{{", ".join(f"{k}: {v}" for k, v in data_args.items())}, test_workers: 1}}
+"""
+    )
+    return config
+
+
+def test_lightning_test_video_writes_a_captioned_mp4_per_episode(tmp_path):
+    run = fit_two_steps(tmp_path)
+    (checkpoint,) = (run / "checkpoints").glob("*.ckpt")
+    config = closed_loop_test_config(tmp_path)
+    argv = ["test", "--config", str(config), "--ckpt_path", str(checkpoint), "--video", "videos"]
+    assert lightning_main(argv) == 0
+    videos = sorted(Path("videos").glob("*.mp4"))
+    assert [v.name for v in videos] == [
+        "block-insertion-normal-seed1-mira.mp4",
+        "block-insertion-normal-seed3-mira.mp4",
+    ]
+    for video, seed in zip(videos, (1, 3), strict=True):
+        reader = imageio.get_reader(video)
+        frames = [frame for frame in reader]
+        assert len(frames) > 30 and frames[0].ndim == 3  # plays: decoded frame by frame
+        sidecar = json.loads(video.with_suffix(".json").read_text())
+        assert sidecar["caption"][:2] == [f"block-insertion (normal), seed {seed}", "method: mira"]
+        assert sidecar["outcome"] == ("success" if sidecar["success"] else "failure")
+        assert sidecar["frames"] == len(frames)
+        if sidecar["success"]:
+            assert sidecar["caption"][2] == "success"
+        else:  # the reason, with the pose error where the object missed its target
+            assert sidecar["caption"][2].startswith(("the object did not end", sidecar["failure"]))
+
+
 def test_lightning_test_with_erred_episodes_exits_non_zero_and_logs_into_the_run(tmp_path, capsys):
     run = fit_two_steps(tmp_path)
     (checkpoint,) = (run / "checkpoints").glob("*.ckpt")
     Path("data").mkdir()
     Path("data/imagery-cache").write_text("a file where the imagery cache folder should be")
-    test_config = tmp_path / "test.yaml"
-    data_args = {**SIZE, "task": "block-insertion", "imagery": "oracle", "test_episodes": 2}
-    data_args.pop("crop_size"), data_args.pop("width")
-    test_config.write_text(
-        f"""trainer: {{accelerator: cpu, devices: 1, enable_progress_bar: false}}
-model: {{class_path: Mira, init_args: {SIZE}}}
-data:
-  class_path: nerf_transporter.data.datamodule.RavensDataModule
-  init_args: {data_args}
-"""
-    )
-    argv = ["test", "--config", str(test_config), "--ckpt_path", str(checkpoint)]
+    argv = [
+        "test",
+        "--config",
+        str(closed_loop_test_config(tmp_path)),
+        "--ckpt_path",
+        str(checkpoint),
+    ]
     assert lightning_main(argv) == 1
     err = capsys.readouterr().err
     assert "2 episodes erred (seeds 1, 3)" in err and "NotADirectoryError" in err

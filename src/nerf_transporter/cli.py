@@ -166,7 +166,18 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
             parser = super()._prepare_subcommand_parser(klass, subcommand, **kwargs)
             if "weights_only" in self._subcommand_method_arguments[subcommand]:
                 parser.set_defaults({"weights_only": True})  # never unpickle code from a checkpoint
+            if subcommand == "test":
+                parser.add_argument(
+                    "--video",
+                    type=str | None,
+                    default=None,
+                    help="write one mp4 per test episode into this folder, captioned, with the "
+                    "chosen pick and place drawn in (a JSON sidecar holds the caption and outcome)",
+                )
             return parser
+
+        def before_test(self) -> None:
+            self.model.test_video_dir = self._get(self.config, "video")
 
         def instantiate_trainer(self, **kwargs: Any) -> pl.Trainer:
             logger = self._get(self.config_init, "trainer", default={}).get("logger")

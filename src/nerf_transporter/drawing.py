@@ -41,7 +41,8 @@ def draw_marker(image: np.ndarray, pixel: Sequence[float], kind: str = "ring") -
     return image
 
 
-def _text_scale(width: int) -> float:
+def text_scale(width: int) -> float:
+    """Font scale of captions on an image `width` pixels wide."""
     return max(0.3, min(0.5, width / 480))
 
 
@@ -62,7 +63,7 @@ def captioned(
 ) -> np.ndarray:
     """`image` under a dark band holding `texts`, each wrapped to the image's width."""
     width = image.shape[1]
-    scale = _text_scale(width)
+    scale = text_scale(width)
     lines = [line for text in texts for line in wrap_text(text, width, scale)]
     line_height = int(cv2.getTextSize("Ag", FONT, scale, 1)[0][1] * 1.8) + 2
     band = np.empty((line_height * len(lines) + 4, width, 3), dtype=np.uint8)

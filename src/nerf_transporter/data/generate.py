@@ -36,6 +36,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from nerf_transporter import geometry as g
+from nerf_transporter.console import HelpFormatter
 from nerf_transporter.data import episode as ep
 from nerf_transporter.data.labels import heightmap_labels, mira_labels
 from nerf_transporter.parallel import exit_if_orphaned, process_pool
@@ -491,7 +492,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="nerf-transporter generate",
         description="Generate oracle demonstrations with their captures and imagery.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("--task", required=True, choices=sorted(TASKS), help="task family")
     parser.add_argument("--setting", default="normal", choices=SETTINGS, help="target tilts")

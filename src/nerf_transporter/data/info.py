@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from nerf_transporter.console import HelpFormatter
 from nerf_transporter.data import episode as ep
 
 
@@ -89,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="nerf-transporter dataset-info",
         description=__doc__,
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument(
         "dataset", help="a dataset directory, e.g. data/block-insertion-normal-train"

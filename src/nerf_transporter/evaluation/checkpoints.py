@@ -22,6 +22,7 @@ from pathlib import Path
 
 import torch
 
+from nerf_transporter.console import HelpFormatter
 from nerf_transporter.evaluation.report import cell
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
 from nerf_transporter.evaluation.testing import (
@@ -78,9 +79,11 @@ def evaluate_checkpoints(
     device: torch.device | None = None,
     progress: bool = True,
     workers: int | None = None,
+    video_dir: Path | None = None,
 ) -> list[dict]:
     """Evaluate every checkpoint of a run on the first `episodes` seeds of `split`, in `workers`
-    worker processes (default: one per available core; 1: in this process)."""
+    worker processes (default: one per available core; 1: in this process); with `video_dir`,
+    every episode is recorded under `<video_dir>/<checkpoint>/`."""
     checkpoints = checkpoint_steps(run_dir)
     if not checkpoints:
         raise FileNotFoundError(f"no readable .ckpt files under {run_dir}")
@@ -96,7 +99,12 @@ def evaluate_checkpoints(
                 log.warning("skipping checkpoint %s that cannot be loaded: %s", path, error)
                 continue
             spec = EvaluationSpec.from_datamodule(
-                datamodule, split=split, setting=setting, imagery=imagery, cache_dir=cache_dir
+                datamodule,
+                split=split,
+                setting=setting,
+                imagery=imagery,
+                cache_dir=cache_dir,
+                video_dir=str(video_dir / path.stem) if video_dir else None,
             )
             if evaluator is None or evaluator.spec != spec:
                 if evaluator is not None:
@@ -137,9 +145,12 @@ def main(argv: list[str] | None = None) -> int:
         prog="nerf-transporter evaluate-checkpoints",
         description="Closed-loop success of every checkpoint of a run (e.g. "
         "logs/block-insertion/mira/version_0) on validation seeds, to pick the one to test.",
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("run_dir", type=Path, help="a run's log directory (searched for *.ckpt)")
-    parser.add_argument("--split", choices=("validation", "test"), default="validation")
+    parser.add_argument(
+        "--split", choices=("validation", "test"), default="validation", help="seed range"
+    )
     parser.add_argument("--episodes", type=int, default=10, help="episodes per checkpoint")
     parser.add_argument("--imagery", choices=("nerf", "oracle"), help="default: as in training")
     parser.add_argument("--setting", help="default: the training setting")
@@ -150,6 +161,12 @@ def main(argv: list[str] | None = None) -> int:
         type=int,
         default=None,
         help="processes running the episodes (default: one per available core; 1: no workers)",
+    )
+    parser.add_argument(
+        "--video",
+        type=Path,
+        default=None,
+        help="write one captioned mp4 per episode into <video>/<checkpoint>/",
     )
     parser.add_argument("--json", action="store_true", help="end with one JSON line")
     args = parser.parse_args(argv)
@@ -167,6 +184,7 @@ def main(argv: list[str] | None = None) -> int:
             cache_dir=args.cache_dir,
             device=torch.device(args.device) if args.device else None,
             workers=args.eval_workers,
+            video_dir=args.video,
         )
     except (FileNotFoundError, ValueError) as error:
         print(f"nerf-transporter evaluate-checkpoints: {error}", file=sys.stderr)

@@ -15,6 +15,8 @@ import json
 import sys
 from pathlib import Path
 
+from nerf_transporter.console import HelpFormatter
+
 RESULTS_GLOB = "results*.json"
 METHODS = {
     "gt_state_mlp": "GT-State MLP",
@@ -109,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
         prog="nerf-transporter report",
         description="Print the success-rate table (rate% (episodes, 95% Wilson CI)) from the "
         "results files (results*.json) that `lightning test` wrote under the given directories.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument(
         "roots", nargs="*", default=["logs"], help="folders searched for results*.json"

@@ -24,6 +24,7 @@ import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -33,7 +34,9 @@ from tqdm.auto import tqdm
 from nerf_transporter import geometry
 from nerf_transporter.data.generate import IMAGERY_RUNTIME_FIELDS, pose_error_text
 from nerf_transporter.data.heightmap import heightmap_from_rgbd
+from nerf_transporter.data.labels import mira_labels
 from nerf_transporter.evaluation.cache import ImageryCache, config_hash
+from nerf_transporter.evaluation.video import EpisodeVideo, plan_panel
 from nerf_transporter.parallel import available_cores
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
@@ -69,6 +72,7 @@ class EvaluationSpec:
     `imagery_config` is the imagery package's config (an `ImageryConfig` or its fields as a dict);
     it must be the one the training data was built with. `pixel_size` sets the size of every image
     the methods see (imagery views and fused heightmaps). `cache_dir=None` disables the cache.
+    With `video_dir`, every episode is also recorded there as an mp4 (`evaluation.video`).
     """
 
     task: str
@@ -79,6 +83,7 @@ class EvaluationSpec:
     nerf_views: int = 30
     nerf_image_size: tuple[int, int] = (480, 640)
     cache_dir: str | None = DEFAULT_CACHE_DIR
+    video_dir: str | None = None
 
     def __post_init__(self) -> None:
         if self.imagery not in IMAGERY_KINDS:
@@ -98,6 +103,7 @@ class EvaluationSpec:
         setting: str | None = None,
         imagery: str | None = None,
         cache_dir: str | None = DEFAULT_CACHE_DIR,
+        video_dir: str | None = None,
     ) -> EvaluationSpec:
         """The spec matching the training data of a `RavensDataModule` (its generation config).
 
@@ -121,6 +127,7 @@ class EvaluationSpec:
             nerf_views=config.nerf_views,
             nerf_image_size=config.nerf_image_size,
             cache_dir=cache_dir,
+            video_dir=video_dir,
         )
 
     def views(self) -> np.ndarray:
@@ -251,6 +258,7 @@ class Evaluator:
                 rigs=rigs,
                 nerf_views=self.spec.nerf_views,
                 nerf_image_size=self.spec.nerf_image_size,
+                render_mode="rgb_array" if self.spec.video_dir else None,
             )
         return self._envs[rigs]
 
@@ -352,6 +360,7 @@ class Evaluator:
         timings: dict[str, float] = {}
         start = time.perf_counter()
         stage, rigs, cached, frames, action_record = "imagery cache", (), None, [], None
+        video, info = None, {}
         try:
             imagery = self._load_imagery(seed) if input_kind == "imagery" else None
             cached = imagery is not None if input_kind == "imagery" else None
@@ -360,8 +369,10 @@ class Evaluator:
             env = self._env(rigs)
             obs, _ = env.reset(seed=seed)
             timings["reset_s"] = time.perf_counter() - start
-            if record_frames:
+            if record_frames or self.spec.video_dir:
                 frames.append(env.render_orthographic(0.0, 0.0)[0])
+            if self.spec.video_dir:
+                video = self._start_video(method, seed, env)
             stage = "observation"
             mark = time.perf_counter()
             observation = self._observation(input_kind, env, obs, seed, imagery)
@@ -373,14 +384,21 @@ class Evaluator:
             timings["act_s"] = time.perf_counter() - mark
             stage = "step"
             mark = time.perf_counter()
-            _, _, _, _, info = env.step(action)
+            if video is not None:
+                video.begin(plan_panel(frames[0], action, self._chosen_view(observation, action)))
+                env.frame_callback = video.add
+            try:
+                _, _, _, _, info = env.step(action)
+            finally:
+                env.frame_callback = None
             timings["step_s"] = time.perf_counter() - mark
             if record_frames:
                 frames.append(env.render_orthographic(0.0, 0.0)[0])
+            success = bool(info["success"])
+            failure, error = None if success else (info.get("failure") or NOT_ACHIEVED), None
         except Exception as exception:
             if stage in ("reset", "observation", "step"):
                 self._discard_env(rigs)
-            timings["total_s"] = time.perf_counter() - start
             text = f"{stage} raised {type(exception).__name__}: {exception}"
             robot_fault = stage == "step" and not isinstance(exception, MemoryError)
             log.warning(
@@ -390,30 +408,49 @@ class Evaluator:
                 stage,
                 exc_info=True,
             )
-            return EpisodeResult(
-                seed=seed,
-                success=False,
-                failure=f"simulator fault during the robot's motion ({text})"
-                if robot_fault
-                else None,
-                error=None if robot_fault else text,
-                action=action_record,
-                timings=timings,
-                imagery_cached=cached,
-            )
+            success = False
+            failure = f"simulator fault during the robot's motion ({text})" if robot_fault else None
+            error = None if robot_fault else text
         timings["total_s"] = time.perf_counter() - start
-        success = bool(info["success"])
-        failure = None if success else (info.get("failure") or NOT_ACHIEVED)
-        return EpisodeResult(
+        result = EpisodeResult(
             seed=seed,
             success=success,
             failure=failure,
+            error=error,
             action=action_record,
             timings=timings,
             imagery_cached=cached,
             pose_error={k: float(info[k]) for k in POSE_ERROR_KEYS if info.get(k) is not None},
-            frames=np.stack(frames) if frames else None,
+            frames=np.stack(frames) if record_frames and len(frames) == 2 else None,
         )
+        if video is not None:
+            video.close("success" if success else str(result.failure_text()), result.to_json())
+        return result
+
+    # -- videos -------------------------------------------------------------------------------
+
+    def _start_video(self, method: Policy, seed: int, env: Any) -> EpisodeVideo:
+        """A video of this episode under `video_dir`, opening on the scene after reset."""
+        name = str(getattr(method, "name", type(method).__name__))
+        task, setting = self.spec.task, self.spec.setting
+        return EpisodeVideo(
+            Path(str(self.spec.video_dir)) / f"{task}-{setting}-seed{seed}-{name}.mp4",
+            [f"{task} ({setting}), seed {seed}", f"method: {name}"],
+            env.render(),
+        )
+
+    def _chosen_view(
+        self, observation: dict, action: dict
+    ) -> tuple[np.ndarray, tuple[float, float], str] | None:
+        """For an imagery method, the grid view nearest to the place tilt (the view `act` chose
+        the place in), with the place pixel in it and a title; None for the other methods."""
+        if "imagery" not in observation:
+            return None
+        imagery = observation["imagery"]
+        labels = mira_labels(action, np.asarray(imagery["views"]), self.spec.pixel_size)
+        roll, pitch = np.degrees(np.asarray(imagery["views"])[labels.place_view])
+        title = f"chosen view {labels.place_view}: roll {roll:.0f}, pitch {pitch:.0f} deg"
+        return imagery["colour"][labels.place_view], tuple(labels.place_pixel), title
 
     def run(
         self,

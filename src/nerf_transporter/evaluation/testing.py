@@ -160,9 +160,12 @@ def erred_seeds_line(record: dict[str, Any]) -> str:
 class ClosedLoopTest:
     """Mixin for the methods' LightningModule base class: `trainer.test` runs closed-loop episodes.
 
-    After a test, `test_record` holds the results payload (for the CLI's exit status)."""
+    With `test_video_dir` set (`lightning test ... --video DIR`), every episode is also recorded
+    there as an mp4. After a test, `test_record` holds the results payload (for the CLI's exit
+    status)."""
 
     test_record: dict[str, Any] | None = None
+    test_video_dir: str | None = None
 
     def on_test_epoch_start(self) -> None:
         self._test_seeds: list[int] = []
@@ -175,7 +178,9 @@ class ClosedLoopTest:
 
     def on_test_epoch_end(self) -> None:
         datamodule = self.trainer.datamodule
-        spec = EvaluationSpec.from_datamodule(datamodule, split="test")
+        spec = EvaluationSpec.from_datamodule(
+            datamodule, split="test", video_dir=self.test_video_dir
+        )
         seeds, start = self._test_seeds, self._test_start
         workers, threads = share_cores(
             len(seeds), getattr(datamodule, "test_workers", None), self.trainer.num_devices

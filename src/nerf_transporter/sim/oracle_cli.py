@@ -11,6 +11,7 @@ import imageio.v2 as imageio
 import numpy as np
 from tqdm import tqdm
 
+from nerf_transporter.console import HelpFormatter
 from nerf_transporter.sim.env import make_env
 from nerf_transporter.sim.tasks import SETTINGS, TASKS
 
@@ -21,7 +22,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="nerf-transporter oracle",
         description=__doc__,
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("--task", required=True, choices=sorted(TASKS), help="task family")
     parser.add_argument(
