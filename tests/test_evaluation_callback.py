@@ -118,6 +118,11 @@ def test_callback_evaluates_two_episodes_and_logs_rate_interval_and_count(fitted
     strip = events.Images("eval/rollouts")
     # one captioned column: the before and after views (2 x 320 rows), a caption band, a frame
     assert len(strip) == 1 and strip[0].height > 2 * 320 + 8 and strip[0].width == 160 + 8
+    # the first validation episode as a video in the run folder and an animated GIF in TensorBoard
+    (video,) = Path(trainer.log_dir, "videos", "step000002").glob("*.mp4")
+    assert video.name == "block-insertion-normal-seed1000000-tiny.mp4"
+    (gif,) = events.Images("eval/rollout_video")
+    assert gif.step == 2 and gif.encoded_image_string.startswith(b"GIF8")
 
     # ModelCheckpoint monitored the validation success rate
     assert checkpoint.best_model_score.item() == pytest.approx(rate)

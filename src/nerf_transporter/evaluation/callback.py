@@ -5,7 +5,9 @@ of fit it runs `episodes` validation episodes (`splits.split_seed("validation", 
 `eval/success_rate`, its 95% Wilson interval (`eval/success_rate_low`, `eval/success_rate_high`) and
 `eval/episodes`, plus an image strip of the first rollouts (top-down view before the action with the
 chosen pick and place drawn in, and after it; captioned with the seed and the outcome or its reason,
-framed lime on success, magenta on failure, grey on error). `ModelCheckpoint(monitor="eval/success_rate")` with the
+framed lime on success, magenta on failure, grey on error). The first `video_episodes` of each
+round are recorded as mp4s in the run folder (`videos/step<N>/`), the first also as an animated
+GIF in TensorBoard (`eval/rollout_video`). `ModelCheckpoint(monitor="eval/success_rate")` with the
 same `every_n_train_steps` keeps the checkpoints with the best validation success (the Transporter
 authors' protocol). Under DDP the seeds are shared out among the processes and the counts summed.
 
@@ -21,12 +23,14 @@ which ranks below every real one, so checkpoint selection ignores that round.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import lightning.pytorch as pl
 import numpy as np
 from lightning.pytorch.callbacks import Callback
 from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_info
+from tensorboard.compat.proto.summary_pb2 import Summary
 from torch.utils.tensorboard.summary import hparams as hparams_summary
 from torchmetrics.aggregation import SumMetric
 
@@ -39,6 +43,7 @@ from nerf_transporter.evaluation.rollout import (
     EvaluationSpec,
     Evaluator,
 )
+from nerf_transporter.evaluation.video import gif_bytes
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.splits import split_seed
 
@@ -101,6 +106,7 @@ class SuccessRateCallback(Callback):
         cache_dir: str | None = DEFAULT_CACHE_DIR,
         strip_episodes: int = 4,
         eval_workers: int | None = None,
+        video_episodes: int = 1,
     ) -> None:
         if every_n_steps < 1:
             raise ValueError(f"every_n_steps must be >= 1, got {every_n_steps}")
@@ -115,6 +121,7 @@ class SuccessRateCallback(Callback):
         self.cache_dir = cache_dir
         self.strip_episodes = strip_episodes
         self.eval_workers = eval_workers
+        self.video_episodes = video_episodes
         self.metric = SuccessRate()
         self.error_count = SumMetric()  # erred episodes, summed over DDP processes
         self._evaluator: Evaluator | None = None
@@ -138,6 +145,8 @@ class SuccessRateCallback(Callback):
         indices = range(trainer.global_rank, self.episodes, trainer.world_size)
         seeds = [split_seed("validation", index) for index in indices]
         workers, threads = share_cores(len(seeds), self.eval_workers, trainer.num_devices)
+        log_dir = trainer.log_dir  # a collective call under DDP: every process asks
+        recording = trainer.is_global_zero and log_dir is not None and self.video_episodes > 0
         results = self._get_evaluator(trainer).run(
             pl_module,
             seeds,
@@ -146,6 +155,10 @@ class SuccessRateCallback(Callback):
             record_frames=self.strip_episodes,
             workers=workers,
             threads=threads,
+            video_dir=Path(log_dir, "videos", f"step{trainer.global_step:06d}")
+            if recording
+            else None,
+            video_episodes=self.video_episodes,
         )
         self.metric = self.metric.to(pl_module.device)
         self.metric.reset()
@@ -175,23 +188,33 @@ class SuccessRateCallback(Callback):
             )
             + "".join(f"\n  seed {line}" for line in misses)
         )
-        self._log(trainer, figures, rollout_strip(results))
+        video = next((result.video for result in results if result.video is not None), None)
+        self._log(trainer, figures, rollout_strip(results), video)
         self._last_step = trainer.global_step
         return figures
 
     def _log(
-        self, trainer: pl.Trainer, figures: dict[str, float], strip: np.ndarray | None
+        self,
+        trainer: pl.Trainer,
+        figures: dict[str, float],
+        strip: np.ndarray | None,
+        video: str | None,
     ) -> None:
         for logger in trainer.loggers:
             logger.log_metrics(figures, step=trainer.global_step)
-            if (
-                strip is not None
-                and isinstance(logger, TensorBoardLogger)
-                and trainer.is_global_zero
-            ):
+            if not isinstance(logger, TensorBoardLogger) or not trainer.is_global_zero:
+                continue
+            if strip is not None:
                 logger.experiment.add_image(
                     "eval/rollouts", strip, trainer.global_step, dataformats="HWC"
                 )
+            if video is not None:
+                gif, (height, width) = gif_bytes(video)
+                image = Summary.Image(
+                    height=height, width=width, colorspace=3, encoded_image_string=gif
+                )
+                summary = Summary(value=[Summary.Value(tag="eval/rollout_video", image=image)])
+                logger.experiment._get_file_writer().add_summary(summary, trainer.global_step)
 
     def hyperparameters(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> dict:
         """What the HParams tab compares runs by: method, task, setting, budget, key settings."""

@@ -104,7 +104,6 @@ def evaluate_checkpoints(
                 setting=setting,
                 imagery=imagery,
                 cache_dir=cache_dir,
-                video_dir=str(video_dir / path.stem) if video_dir else None,
             )
             if evaluator is None or evaluator.spec != spec:
                 if evaluator is not None:
@@ -112,7 +111,13 @@ def evaluate_checkpoints(
                 evaluator = Evaluator(spec)
             start = time.perf_counter()
             results = evaluator.run(
-                model, seeds, progress=progress, desc=path.name, workers=workers, threads=threads
+                model,
+                seeds,
+                progress=progress,
+                desc=path.name,
+                workers=workers,
+                threads=threads,
+                video_dir=video_dir / path.stem if video_dir else None,
             )
             record = results_record(
                 [result.to_json() for result in results],

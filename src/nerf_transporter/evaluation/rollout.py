@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import os
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -72,7 +73,6 @@ class EvaluationSpec:
     `imagery_config` is the imagery package's config (an `ImageryConfig` or its fields as a dict);
     it must be the one the training data was built with. `pixel_size` sets the size of every image
     the methods see (imagery views and fused heightmaps). `cache_dir=None` disables the cache.
-    With `video_dir`, every episode is also recorded there as an mp4 (`evaluation.video`).
     """
 
     task: str
@@ -83,7 +83,6 @@ class EvaluationSpec:
     nerf_views: int = 30
     nerf_image_size: tuple[int, int] = (480, 640)
     cache_dir: str | None = DEFAULT_CACHE_DIR
-    video_dir: str | None = None
 
     def __post_init__(self) -> None:
         if self.imagery not in IMAGERY_KINDS:
@@ -103,7 +102,6 @@ class EvaluationSpec:
         setting: str | None = None,
         imagery: str | None = None,
         cache_dir: str | None = DEFAULT_CACHE_DIR,
-        video_dir: str | None = None,
     ) -> EvaluationSpec:
         """The spec matching the training data of a `RavensDataModule` (its generation config).
 
@@ -127,7 +125,6 @@ class EvaluationSpec:
             nerf_views=config.nerf_views,
             nerf_image_size=config.nerf_image_size,
             cache_dir=cache_dir,
-            video_dir=video_dir,
         )
 
     def views(self) -> np.ndarray:
@@ -173,7 +170,8 @@ class EpisodeResult:
     """Outcome of one episode. `failure`: why the robot did not achieve the task; `error`: what
     went wrong that was not the robot's doing (the episode then did not count); `pose_error`: how
     far the object ended from its target (the task's errors: position in metres, tilt and yaw in
-    radians); `frames`: top-down colour before and after the action, if recorded."""
+    radians); `video`: the episode's mp4, if recorded; `frames`: top-down colour before and after
+    the action, if recorded."""
 
     seed: int
     success: bool
@@ -183,6 +181,7 @@ class EpisodeResult:
     timings: dict[str, float] = field(default_factory=dict)
     imagery_cached: bool | None = None
     pose_error: dict[str, float] = field(default_factory=dict)
+    video: str | None = None
     frames: np.ndarray | None = None
 
     @property
@@ -258,7 +257,7 @@ class Evaluator:
                 rigs=rigs,
                 nerf_views=self.spec.nerf_views,
                 nerf_image_size=self.spec.nerf_image_size,
-                render_mode="rgb_array" if self.spec.video_dir else None,
+                render_mode="rgb_array",  # side-camera frames for videos, when recorded
             )
         return self._envs[rigs]
 
@@ -341,16 +340,25 @@ class Evaluator:
 
     # -- episodes -----------------------------------------------------------------------------
 
-    def run_episode(self, method: Policy, seed: int, record_frames: bool = False) -> EpisodeResult:
+    def run_episode(
+        self,
+        method: Policy,
+        seed: int,
+        record_frames: bool = False,
+        video_dir: str | os.PathLike | None = None,
+    ) -> EpisodeResult:
         """Reset with `seed`, observe, act, execute, judge; never raises for a failing episode.
+        With `video_dir`, the episode is also recorded there as an mp4 (`evaluation.video`).
 
         The global torch random state is restored afterwards (imagery fitting seeds it), so
         evaluating during training does not change the training run.
         """
         with torch.random.fork_rng():
-            return self._episode(method, seed, record_frames)
+            return self._episode(method, seed, record_frames, video_dir)
 
-    def _episode(self, method: Policy, seed: int, record_frames: bool) -> EpisodeResult:
+    def _episode(
+        self, method: Policy, seed: int, record_frames: bool, video_dir: str | os.PathLike | None
+    ) -> EpisodeResult:
         input_kind = getattr(method, "input_kind", None)
         if input_kind not in INPUT_KINDS:
             raise ValueError(
@@ -369,10 +377,10 @@ class Evaluator:
             env = self._env(rigs)
             obs, _ = env.reset(seed=seed)
             timings["reset_s"] = time.perf_counter() - start
-            if record_frames or self.spec.video_dir:
+            if record_frames or video_dir:
                 frames.append(env.render_orthographic(0.0, 0.0)[0])
-            if self.spec.video_dir:
-                video = self._start_video(method, seed, env)
+            if video_dir:
+                video = self._start_video(Path(video_dir), method, seed, env)
             stage = "observation"
             mark = time.perf_counter()
             observation = self._observation(input_kind, env, obs, seed, imagery)
@@ -424,17 +432,20 @@ class Evaluator:
             frames=np.stack(frames) if record_frames and len(frames) == 2 else None,
         )
         if video is not None:
-            video.close("success" if success else str(result.failure_text()), result.to_json())
+            written = video.close(
+                "success" if success else str(result.failure_text()), result.to_json()
+            )
+            result.video = None if written is None else str(written)
         return result
 
     # -- videos -------------------------------------------------------------------------------
 
-    def _start_video(self, method: Policy, seed: int, env: Any) -> EpisodeVideo:
-        """A video of this episode under `video_dir`, opening on the scene after reset."""
+    def _start_video(self, folder: Path, method: Policy, seed: int, env: Any) -> EpisodeVideo:
+        """A video of this episode in `folder`, opening on the scene after reset."""
         name = str(getattr(method, "name", type(method).__name__))
         task, setting = self.spec.task, self.spec.setting
         return EpisodeVideo(
-            Path(str(self.spec.video_dir)) / f"{task}-{setting}-seed{seed}-{name}.mp4",
+            folder / f"{task}-{setting}-seed{seed}-{name}.mp4",
             [f"{task} ({setting}), seed {seed}", f"method: {name}"],
             env.render(),
         )
@@ -461,9 +472,12 @@ class Evaluator:
         record_frames: int = 0,
         workers: int = 1,
         threads: int | None = None,
+        video_dir: str | os.PathLike | None = None,
+        video_episodes: int | None = None,
     ) -> list[EpisodeResult]:
         """Episodes for `seeds`, results in seed order, the first `record_frames` with frames; an
-        optional progress bar shows the successes (and errors) so far.
+        optional progress bar shows the successes (and errors) so far. With `video_dir`, the first
+        `video_episodes` (default: all) are recorded there as mp4s.
 
         With `workers` > 1 (and more than one seed) the episodes run in that many worker processes
         (`evaluation.workers`), each with `threads` torch threads (default: the available cores
@@ -483,10 +497,21 @@ class Evaluator:
                 bar.update(1)
                 bar.set_postfix(successes=successes, **({"errors": errors} if errors else {}))
 
+            videos = len(seeds) if video_episodes is None else video_episodes
+            episodes = [
+                (
+                    seed,
+                    {
+                        "record_frames": index < record_frames,
+                        "video_dir": str(video_dir) if video_dir and index < videos else None,
+                    },
+                )
+                for index, seed in enumerate(seeds)
+            ]
             if workers == 1:
                 results = []
-                for index, seed in enumerate(seeds):
-                    results.append(self.run_episode(method, seed, index < record_frames))
+                for seed, options in episodes:
+                    results.append(self.run_episode(method, seed, **options))
                     count(results[-1])
                 return results
             from nerf_transporter.evaluation.workers import policy_recipe  # imports this module
@@ -495,7 +520,7 @@ class Evaluator:
                 self.spec,
                 self.env_factory,
                 policy_recipe(method),
-                [(seed, index < record_frames) for index, seed in enumerate(seeds)],
+                episodes,
                 count,
             )
 

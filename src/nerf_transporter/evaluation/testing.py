@@ -178,9 +178,7 @@ class ClosedLoopTest:
 
     def on_test_epoch_end(self) -> None:
         datamodule = self.trainer.datamodule
-        spec = EvaluationSpec.from_datamodule(
-            datamodule, split="test", video_dir=self.test_video_dir
-        )
+        spec = EvaluationSpec.from_datamodule(datamodule, split="test")
         seeds, start = self._test_seeds, self._test_start
         workers, threads = share_cores(
             len(seeds), getattr(datamodule, "test_workers", None), self.trainer.num_devices
@@ -193,6 +191,7 @@ class ClosedLoopTest:
                 desc="test episodes",
                 workers=workers,
                 threads=threads,
+                video_dir=self.test_video_dir,
             )
         results = [episode.to_json() for episode in episodes]
         if self.trainer.world_size > 1:

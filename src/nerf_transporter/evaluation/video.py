@@ -10,6 +10,7 @@ text also goes to a sidecar `<video>.json`. Written to a temporary name and rena
 
 from __future__ import annotations
 
+import io
 import json
 import logging
 import os
@@ -128,3 +129,22 @@ class EpisodeVideo:
         }
         self.path.with_suffix(".json").write_text(json.dumps(sidecar, indent=2) + "\n")
         return self.path
+
+
+def gif_bytes(
+    path: str | os.PathLike, every: int = 3, scale: float = 0.5
+) -> tuple[bytes, tuple[int, int]]:
+    """A small animated GIF of an episode video (every `every`-th frame at `scale`) and its
+    (height, width), for TensorBoard's image tab, which plays GIFs."""
+    frames = []
+    reader = imageio.get_reader(path)
+    try:
+        for index, frame in enumerate(reader):
+            if index % every == 0:
+                size = (round(frame.shape[1] * scale), round(frame.shape[0] * scale))
+                frames.append(cv2.resize(frame, size, interpolation=cv2.INTER_AREA))
+    finally:
+        reader.close()
+    buffer = io.BytesIO()
+    imageio.mimwrite(buffer, frames, format="GIF", duration=1000 * every / FPS, loop=0)
+    return buffer.getvalue(), frames[0].shape[:2]

@@ -106,9 +106,9 @@ def _prepare(spec: EvaluationSpec, env_factory: EnvFactory, recipe: PolicyRecipe
     _WORKER["policy"] = recipe.build()
 
 
-def _episode(seed: int, record_frames: bool) -> EpisodeResult:
+def _episode(seed: int, options: dict[str, Any]) -> EpisodeResult:
     exit_if_orphaned()
-    return _WORKER["evaluator"].run_episode(_WORKER["policy"], seed, record_frames)
+    return _WORKER["evaluator"].run_episode(_WORKER["policy"], seed, **options)
 
 
 # -- in the evaluating process -----------------------------------------------------------------
@@ -136,10 +136,10 @@ class EpisodeWorkers:
         spec: EvaluationSpec,
         env_factory: EnvFactory,
         recipe: PolicyRecipe,
-        episodes: list[tuple[int, bool]],
+        episodes: list[tuple[int, dict[str, Any]]],
         on_result: Callable[[EpisodeResult], None] = lambda result: None,
     ) -> list[EpisodeResult]:
-        """Results of `episodes` ((seed, record frames) pairs) in their order; `on_result` is
+        """Results of `episodes` ((seed, `run_episode` options) pairs) in their order; `on_result` is
         called as each one finishes. A policy that cannot be rebuilt in a worker raises."""
         for worker in self._workers:
             if worker is not None:
@@ -153,8 +153,8 @@ class EpisodeWorkers:
             while queue or running:
                 while queue and idle:
                     slot = idle.pop()
-                    position, (seed, frames) = queue.popleft()
-                    running[self._submit(slot, prepare, seed, frames)] = (slot, position)
+                    position, (seed, options) = queue.popleft()
+                    running[self._submit(slot, prepare, seed, options)] = (slot, position)
                 finished, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
                 for future in finished:
                     slot, position = running.pop(future)
@@ -166,20 +166,20 @@ class EpisodeWorkers:
             raise
         return results
 
-    def _submit(self, slot: int, prepare: tuple, seed: int, frames: bool) -> cf.Future:
+    def _submit(self, slot: int, prepare: tuple, seed: int, options: dict) -> cf.Future:
         try:
-            return self._submit_to(slot, prepare, seed, frames)
+            return self._submit_to(slot, prepare, seed, options)
         except BrokenProcessPool:  # the idle process died since its last episode: start afresh
             self._discard(slot)
-            return self._submit_to(slot, prepare, seed, frames)
+            return self._submit_to(slot, prepare, seed, options)
 
-    def _submit_to(self, slot: int, prepare: tuple, seed: int, frames: bool) -> cf.Future:
+    def _submit_to(self, slot: int, prepare: tuple, seed: int, options: dict) -> cf.Future:
         worker = self._workers[slot]
         if worker is None:
             worker = self._workers[slot] = _Worker(process_pool(1, self.threads))
         if worker.prepared is None:
             worker.prepared = worker.pool.submit(_prepare, *prepare)
-        return worker.pool.submit(_episode, seed, frames)
+        return worker.pool.submit(_episode, seed, options)
 
     def _result(self, slot: int, future: cf.Future, seed: int) -> EpisodeResult:
         error = self._workers[slot].prepared.exception()  # it ran before the episode
