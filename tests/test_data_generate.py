@@ -200,23 +200,7 @@ def test_config_mismatch_refused_with_difference(fake_world, tmp_path, capsys):
         ep.DatasetConfigMismatchError, match=r"cameras.nerf.views: stored 2, requested 5"
     ):
         gen.generate_dataset(config, 1, tmp_path, progress=False)
-    code = gen.main(
-        [
-            "--task",
-            "block-insertion",
-            "--imagery",
-            "oracle",
-            "--episodes",
-            "1",
-            "--pixel-size",
-            str(PIXEL),
-            "--nerf-views",
-            "5",
-            "--data-dir",
-            str(tmp_path),
-            "--no-progress",
-        ]
-    )
+    code = gen.main(cli_args(tmp_path, "--nerf-views", "5"))
     assert code == 2 and "cameras.nerf.views: stored 2, requested 5" in capsys.readouterr().err
 
 
