@@ -16,7 +16,7 @@ import statistics
 import time
 
 import numpy as np
-import torch
+from device_info import describe_device, device_line
 
 from nerf_transporter import geometry, splits
 from nerf_transporter.imagery import ImageryConfig, fit_scene, height_mae_mm, psnr, render_views
@@ -84,11 +84,12 @@ def main(argv: list[str] | None = None) -> int:
             )
     keys = ("fit_s", "render_s", "psnr_db", "height_mae_mm", "object_height_mae_mm")
     summary = {key: statistics.median(r[key] for r in per_scene) for key in keys}
-    summary.update(threads=torch.get_num_threads(), device=str(config.device), per_scene=per_scene)
+    summary.update(device=describe_device(config.device), per_scene=per_scene)
     if args.json:
         print(json.dumps(summary))
     else:
         print("medians: " + ", ".join(f"{key} {summary[key]:.2f}" for key in keys))
+        print(device_line(summary["device"]))
     return 0
 
 

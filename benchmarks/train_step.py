@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 import torch
+from device_info import describe_device, device_line
 
 from nerf_transporter import geometry as g
 from nerf_transporter.methods import METHODS, Method
@@ -110,8 +111,7 @@ def main() -> None:
     device = torch.device(args.device)
     torch.manual_seed(0)
     results: dict = {
-        "device": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
-        "threads": torch.get_num_threads(),
+        "device": describe_device(device),
         "load_average_before": os.getloadavg()[0],
         "image_shape": list(g.image_shape()),
         "n_rotations": 36,
@@ -141,7 +141,7 @@ def main() -> None:
     else:
         print(f"mira.act over 49 views: {results.get('mira_act_49_views_seconds', 'n/a')} s")
         print(
-            f"device {results['device']}, {results['threads']} threads, load average "
+            f"{device_line(results['device'])}, load average "
             f"{results['load_average_before']:.1f} -> {results['load_average_after']:.1f}"
         )
 

@@ -158,3 +158,55 @@ def test_hyperparameters_are_plain_values():
         assert all(isinstance(v, (int, float, str, bool, type(None))) for v in hparams.values()), (
             name
         )
+
+
+# Losses and gradient norm of one step, recorded with the implementation before the training-speed
+# work (commit 7bfdff0): speed changes must not change what is learned.
+REFERENCE_STEP = {
+    "mira": (30.02442169189453, 7.045197486877441, 22.979223251342773, 246.08302307128906),
+    "transporter_se2": (
+        29.32361602783203,
+        7.045197486877441,
+        22.278417587280273,
+        245.9768829345703,
+    ),
+    "transporter_se3": (
+        29.478042602539062,
+        7.045426368713379,
+        22.280961990356445,
+        246.01763916015625,
+    ),
+    "form2fit": (15.098299026489258, 7.045187473297119, 7.0531110763549805, 0.2428598701953888),
+}
+
+
+@pytest.mark.parametrize("name", list(REFERENCE_STEP))
+def test_step_matches_the_reference_implementation(name):
+    """44 x 26 images (FFT lengths rounded up), 8 rotations, 16-pixel crops, width 4, seed 0."""
+    torch.manual_seed(0)
+    method = METHODS[name](width=4, n_rotations=8, crop_size=16)
+    image = torch.randn(1, 6, 44, 26)
+    batch = {
+        "pick_pixel": torch.tensor([[20, 12]]),
+        "place_pixel": torch.tensor([[30, 5]]),
+        "rotation_bin": torch.tensor([3]),
+    }
+    if method.input_kind == "imagery":
+        batch.update(pick_image=image, place_images=torch.randn(1, 2, 6, 44, 26))
+    else:
+        batch.update(
+            image=image,
+            place_z=torch.tensor([0.05]),
+            place_roll=torch.tensor([0.1]),
+            place_pitch=torch.tensor([-0.1]),
+        )
+    losses = method.losses(batch)
+    losses["loss"].backward()
+    grads = [p.grad.flatten() for p in method.parameters() if p.grad is not None]
+    measured = (
+        float(losses["loss"].detach()),
+        float(losses["pick_loss"].detach()),
+        float(losses["place_loss"].detach()),
+        float(torch.cat(grads).norm()),
+    )
+    assert measured == pytest.approx(REFERENCE_STEP[name], rel=1e-5)

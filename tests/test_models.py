@@ -16,6 +16,7 @@ from nerf_transporter.models import (
     unravel_argmax,
 )
 from nerf_transporter.models.mlp import quat_to_matrix
+from nerf_transporter.models.transport import correlate_spectrum, kernel_spectrum
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -56,6 +57,32 @@ def test_cross_correlate_is_centred_on_the_kernel_centre():
         padded = torch.nn.functional.pad(query[b], (3, 3, 3, 3))
         direct = torch.nn.functional.conv2d(padded, kernels[b])[..., :20, :15]
         assert torch.allclose(out[b], direct, atol=1e-3)
+
+
+def test_cross_correlate_gradients_match_direct_convolution():
+    """The hand-written backward equals autograd through conv2d, and the spectrum path (`act`)
+    gives the same logits."""
+    torch.manual_seed(0)
+    query = torch.randn(2, 3, 4, 21, 14, dtype=torch.float64, requires_grad=True)
+    kernels = torch.randn(2, 5, 4, 6, 6, dtype=torch.float64, requires_grad=True)
+    weights = torch.randn(2, 3, 5, 21, 14, dtype=torch.float64)
+    (cross_correlate(query, kernels) * weights).sum().backward()
+    fft_grads = query.grad.clone(), kernels.grad.clone()
+    query.grad = kernels.grad = None
+    direct = torch.stack(
+        [
+            torch.nn.functional.conv2d(torch.nn.functional.pad(query[b], (3, 3, 3, 3)), kernels[b])[
+                ..., :21, :14
+            ]
+            for b in range(2)
+        ]
+    )
+    (direct * weights).sum().backward()
+    assert torch.allclose(fft_grads[0], query.grad, atol=1e-9)
+    assert torch.allclose(fft_grads[1], kernels.grad, atol=1e-9)
+    with torch.no_grad():
+        spectrum = kernel_spectrum(kernels, (21, 14))
+        assert torch.allclose(correlate_spectrum(query, spectrum, 6), direct, atol=1e-9)
 
 
 def test_transport_logits_shape_and_one_softmax_over_views():

@@ -7,7 +7,7 @@ as it will look once the gripper has turned by theta_k. Rotating the pick scene 
 shifts the logits by -m bins (tested).
 
 Correlation runs in the Fourier domain: 36 kernels of 64 x 64 over a 320 x 160 image cost a few FFTs
-instead of ~20 GMAC of direct convolution.
+instead of ~20 GMAC of direct convolution; the backward pass is hand-written FFT correlations too.
 """
 
 from __future__ import annotations
@@ -59,40 +59,130 @@ def rotated_crops(
     return crops.reshape(batch, channels, n_rot, size, size).transpose(1, 2)
 
 
+def fast_fft_length(n: int) -> int:
+    """Smallest length >= n with no prime factor above 5 (pocketfft's fast sizes)."""
+    while True:
+        rest = n
+        for prime in (2, 3, 5):
+            while rest % prime == 0:
+                rest //= prime
+        if rest == 1:
+            return n
+        n += 1
+
+
 def fft_shape(image_shape: tuple[int, int], crop_size: int) -> tuple[int, int]:
-    """Smallest FFT domain for a centred correlation with no wrap-around: image + half a kernel."""
-    return image_shape[0] + crop_size // 2, image_shape[1] + crop_size // 2
+    """FFT domain for a centred correlation with no wrap-around: image + half a kernel, rounded up
+    to fast FFT lengths."""
+    half = crop_size // 2
+    return fast_fft_length(image_shape[0] + half), fast_fft_length(image_shape[1] + half)
+
+
+def _spectrum(x: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+    """rfft2 of real maps [..., h, w] zero-padded to `shape`: the short rows first, then columns."""
+    return torch.fft.fft(torch.fft.rfft(x, n=shape[1]), n=shape[0], dim=-2)
+
+
+def _conj_spectrum(x: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+    """The complex conjugate of `_spectrum`, computed directly (unnormalised inverse transforms)."""
+    rows = torch.fft.ihfft(x, n=shape[1], norm="forward")
+    return torch.fft.ifft(rows, n=shape[0], dim=-2, norm="forward")
+
+
+def _circular_slice(x: torch.Tensor, dim: int, start: int, size: int) -> torch.Tensor:
+    """Entries start, start + 1, ..., start + size - 1 (mod the length) of x along `dim`."""
+    length = x.shape[dim]
+    start %= length
+    if start + size <= length:
+        return x.narrow(dim, start, size)
+    head = x.narrow(dim, start, length - start)
+    return torch.cat([head, x.narrow(dim, 0, size - head.shape[dim])], dim)
+
+
+def _window(
+    spectrum: torch.Tensor, shape: tuple[int, int], offset: int, size: tuple[int, int]
+) -> torch.Tensor:
+    """Real maps [..., size] at circular positions offset + (0 .. size - 1) of irfft2(spectrum).
+
+    The column transform runs only on the kept rows.
+    """
+    rows = _circular_slice(torch.fft.ifft(spectrum, dim=-2), -2, offset, size[0])
+    return _circular_slice(torch.fft.irfft(rows, n=shape[1]), -1, offset, size[1])
 
 
 def kernel_spectrum(kernels: torch.Tensor, image_shape: tuple[int, int]) -> torch.Tensor:
-    """Fourier transform of kernels [B, R, C, k, k] on the FFT domain of `image_shape` images."""
-    return torch.fft.rfft2(kernels, s=fft_shape(image_shape, kernels.shape[-1]))
+    """Conjugated Fourier transform of kernels [B, R, C, k, k] on the FFT domain of `image_shape`
+    images: what `correlate_spectrum` multiplies the query spectrum by."""
+    return _conj_spectrum(kernels, fft_shape(image_shape, kernels.shape[-1]))
+
+
+def _correlate_spectra(query_f: torch.Tensor, kernel_f: torch.Tensor) -> torch.Tensor:
+    """Channel sum of query spectra [B, V, C, h, w] times conjugated kernel spectra [B, R, C, h, w]
+    -> [B, V, R, h, w]."""
+    product = query_f[:, :, None, 0] * kernel_f[:, None, :, 0]
+    for channel in range(1, query_f.shape[2]):  # few channels: a loop beats a complex einsum
+        product += query_f[:, :, None, channel] * kernel_f[:, None, :, channel]
+    return product
 
 
 def correlate_spectrum(query: torch.Tensor, kernel_f: torch.Tensor, crop_size: int) -> torch.Tensor:
-    """Centred cross-correlation of query maps [B, V, C, H, W] with kernel spectra -> [B, V, R, H, W].
+    """Centred cross-correlation of query maps [B, V, C, H, W] with `kernel_spectrum` output ->
+    [B, V, R, H, W].
 
     out[y, x] = sum_{c,u,v} query[c, y + u - k/2, x + v - k/2] * kernel[c, u, v], with the query zero
     outside the image: kernel pixel (k/2, k/2), the crop's centre, lands on (y, x).
     """
     height, width = query.shape[-2:]
     shape = fft_shape((height, width), crop_size)
-    query_f = torch.fft.rfft2(query, s=shape)
-    kernel_f = kernel_f.conj()[:, None]  # [B, 1, R, C, h, w]
-    product = query_f[:, :, None, 0] * kernel_f[:, :, :, 0]
-    for channel in range(1, query_f.shape[2]):  # few channels: a loop beats a complex einsum
-        product += query_f[:, :, None, channel] * kernel_f[:, :, :, channel]
-    full = torch.fft.irfft2(product, s=shape)
+    product = _correlate_spectra(_spectrum(query, shape), kernel_f)
     # Circular index (y - k/2) mod Hp holds output row y.
-    half = crop_size // 2
-    return full.roll((half, half), dims=(-2, -1))[..., :height, :width]
+    return _window(product, shape, -(crop_size // 2), (height, width))
+
+
+class _CrossCorrelation(torch.autograd.Function):
+    """`correlate_spectrum` with a hand-written backward: the gradients are themselves FFT
+    correlations on the same domain, which costs a fraction of autograd through the transforms."""
+
+    @staticmethod
+    def forward(
+        ctx: torch.autograd.function.FunctionCtx, query: torch.Tensor, kernels: torch.Tensor
+    ) -> torch.Tensor:
+        height, width = query.shape[-2:]
+        crop_size = kernels.shape[-1]
+        shape = fft_shape((height, width), crop_size)
+        query_f = _spectrum(query, shape)
+        kernel_f = _conj_spectrum(kernels, shape)
+        ctx.save_for_backward(query_f, kernel_f)
+        ctx.geometry = shape, crop_size, (height, width)
+        product = _correlate_spectra(query_f, kernel_f)
+        return _window(product, shape, -(crop_size // 2), (height, width))
+
+    @staticmethod
+    def backward(
+        ctx: torch.autograd.function.FunctionCtx, grad: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        query_f, kernel_f = ctx.saved_tensors
+        shape, crop_size, image_shape = ctx.geometry
+        half = crop_size // 2
+        grad_f = _conj_spectrum(grad, shape)  # [B, V, R, h, w], output pixel (y, x) at (y, x)
+        # d query[c, Y] = sum_{r,u} grad[r, Y + k/2 - u] kernel[r, c, u]: a convolution.
+        query_grad_f = grad_f[:, :, 0, None] * kernel_f[:, None, 0]
+        for rotation in range(1, kernel_f.shape[1]):  # beats einsum's transposing copies
+            query_grad_f += grad_f[:, :, rotation, None] * kernel_f[:, None, rotation]
+        query_grad_f = query_grad_f.conj()
+        query_grad = _window(query_grad_f, shape, half, image_shape)
+        # d kernel[r, c, u] = sum_{v,y} grad[v, r, y] query[v, c, y + u - k/2]: a correlation.
+        kernel_grad_f = grad_f[:, 0, :, None] * query_f[:, 0, None]
+        for view in range(1, query_f.shape[1]):
+            kernel_grad_f += grad_f[:, view, :, None] * query_f[:, view, None]
+        kernel_grad = _window(kernel_grad_f, shape, -half, (crop_size, crop_size))
+        return query_grad, kernel_grad
 
 
 def cross_correlate(query: torch.Tensor, kernels: torch.Tensor) -> torch.Tensor:
     """Centred cross-correlation, summed over channels: query [B, V, C, H, W], kernels
     [B, R, C, k, k] -> [B, V, R, H, W] (see `correlate_spectrum`)."""
-    kernel_f = kernel_spectrum(kernels, query.shape[-2:])
-    return correlate_spectrum(query, kernel_f, kernels.shape[-1])
+    return _CrossCorrelation.apply(query, kernels)
 
 
 class Transport(nn.Module):
