@@ -93,7 +93,11 @@ def test_fit_help(command, capsys):
 
 def test_nerf_transporter_lists_and_runs_training_commands(capsys):
     assert main([]) == 0
-    assert "fit" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    commands = [line for line in out.splitlines() if line.startswith("  ")]
+    assert {line.split()[0] for line in commands} >= {"fit", "test", "evaluate-checkpoints"}
+    # descriptions start in one column, after the longest command name
+    assert len({len(line) - len(line[2:].split(maxsplit=1)[1]) for line in commands}) == 1
     with pytest.raises(SystemExit) as exit_info:
         main(["fit", "--help"])
     assert exit_info.value.code == 0

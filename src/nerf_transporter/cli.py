@@ -28,7 +28,10 @@ TOOLS: dict[str, tuple[str, str]] = {
         "episodes, seeds, imagery quality (--verify)",
     ),
     "report": ("nerf_transporter.evaluation.report:main", "results table (markdown or --csv)"),
-    "evaluate-checkpoints": ("nerf_transporter.evaluation.checkpoints:main", "rank checkpoints"),
+    "evaluate-checkpoints": (
+        "nerf_transporter.evaluation.checkpoints:main",
+        "closed-loop success of every checkpoint of a run, to pick the one to test",
+    ),
 }
 
 
@@ -45,11 +48,11 @@ LIGHTNING_COMMANDS: dict[str, str] = {
 
 
 def _usage() -> str:
+    commands = list(LIGHTNING_COMMANDS.items())
+    commands += [(name, help_text) for name, (_, help_text) in sorted(TOOLS.items())]
+    width = max(len(name) for name, _ in commands) + 2
     lines = ["usage: nerf-transporter <command> [options]", "", "commands:"]
-    for name, help_text in LIGHTNING_COMMANDS.items():
-        lines.append(f"  {name:<14}{help_text}")
-    for name, (_, help_text) in sorted(TOOLS.items()):
-        lines.append(f"  {name:<14}{help_text}")
+    lines += [f"  {name:<{width}}{help_text}" for name, help_text in commands]
     lines.append("\nRun `nerf-transporter <command> --help` for the options of one command.")
     return "\n".join(lines)
 
