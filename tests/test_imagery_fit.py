@@ -153,3 +153,18 @@ def test_fit_works_inside_inference_mode(scene_and_views, mode):
     with mode():
         colour, height = render_views(fit_scene(images, intrinsics, poses, config), views, config)
     assert np.array_equal(colour, expected[0]) and np.array_equal(height, expected[1])
+
+
+def test_views_render_alike_alone_and_batched_together(scene_and_views):
+    """All views are rendered as one batch of rays, cut anywhere, even inside a view."""
+    _, images, intrinsics, poses = scene_and_views
+    config = tiny_config(iterations=12, occupancy_warmup=4, occupancy_interval=4)
+    fitted = fit_scene(images, intrinsics, poses, config)
+    views = geometry.view_grid()[[0, 24, 48]]
+    colour, height = render_views(fitted, views, tiny_config(render_batch=1000))
+    for index, view in enumerate(views):
+        alone_colour, alone_height = render_views(fitted, view[None], config)
+        assert np.abs(colour[index].astype(int) - alone_colour[0]).max() <= 1
+        assert np.allclose(height[index], alone_height[0], atol=1e-5)
+    empty_colour, empty_height = render_views(fitted, np.zeros((0, 2)), config)
+    assert empty_colour.shape == (0, 80, 40, 3) and empty_height.shape == (0, 80, 40)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 import torch
@@ -39,8 +39,10 @@ class NonFiniteLossError(FloatingPointError):
 class ImageryConfig:
     """Settings of the radiance-field fit and of the orthographic rendering."""
 
-    field: str = "dense"  # "dense" (voxel grid, CPU default) or "hash" (instant-NGP style, GPU)
-    device: str = "auto"  # "auto": CUDA when available, else CPU
+    field: str = (
+        "dense"  # "dense" (voxel grid; default on CPU and GPU) or "hash" (instant-NGP style)
+    )
+    device: str = "auto"  # "auto": CUDA when available, else CPU (render_batch follows the device)
     seed: int = 0
     iterations: int = 400
     batch_rays: int = 4096
@@ -74,9 +76,9 @@ class ImageryConfig:
     floor_smoothness_weight: float = 0.01  # times the mean squared colour step of the floor map
     final_learning_rate_factor: float = 0.1  # exponential decay of the learning rate to this factor
     pixel_size: float = geometry.PIXEL_SIZE  # of the rendered orthographic views
-    render_batch: int = 1 << 16
-    segments_per_round: int = 2
-    min_transmittance: float = 1e-3
+    render_batch: int = (
+        0  # rays per rendering call, views batched; 0: per device (see render_rays_per_call)
+    )
     threads: int | None = None  # torch CPU threads (None: leave torch's default)
     progress: bool = True
 
@@ -88,6 +90,8 @@ class ImageryConfig:
         for name in ("iterations", "batch_rays", "image_downscale", "samples_per_segment"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.render_batch < 0:
+            raise ValueError(f"render_batch must be >= 0, got {self.render_batch}")
 
     @property
     def voxels(self) -> tuple[int, int, int]:
@@ -98,9 +102,17 @@ class ImageryConfig:
         return MarchSettings(
             segment_length=self.voxel_size * self.occupancy_cell,
             samples_per_segment=self.samples_per_segment,
-            segments_per_round=self.segments_per_round,
-            min_transmittance=self.min_transmittance,
         )
+
+    def render_rays_per_call(self, device: torch.device) -> int:
+        """`render_batch`, or when 0 the device's default.
+
+        CPU: 1 << 16 rays (about one view; larger batches only cost memory). CUDA: 1 << 19 rays
+        (about ten views per call, a few GiB), since small batches leave the GPU waiting on Python.
+        """
+        if self.render_batch > 0:
+            return self.render_batch
+        return 1 << 19 if device.type == "cuda" else 1 << 16
 
 
 class FittedScene(nn.Module):
@@ -335,21 +347,27 @@ def _fit_scene(
 def render_views(
     scene: FittedScene, views: np.ndarray, config: ImageryConfig | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Orthographic colour (uint8 [V, H, W, 3]) and height (float32 [V, H, W]) of views [V, 2] (roll, pitch)."""
+    """Orthographic colour (uint8 [V, H, W, 3]) and height (float32 [V, H, W]) of views [V, 2] (roll, pitch).
+
+    The rays of all views are rendered together, `config.render_rays_per_call` at a time.
+    """
     config = config or ImageryConfig()
     views = np.asarray(views, dtype=float).reshape(-1, 2)
     rows, cols = geometry.image_shape(config.pixel_size)
+    if len(views) == 0:
+        return np.empty((0, rows, cols, 3), np.uint8), np.empty((0, rows, cols), np.float32)
     settings = config.march_settings()
-    colours = np.empty((len(views), rows, cols, 3), dtype=np.uint8)
-    heights = np.empty((len(views), rows, cols), dtype=np.float32)
-    for index, (roll, pitch) in enumerate(views):
-        rays = orthographic_rays(roll, pitch, config.pixel_size, device=scene.device)
-        colour_parts, height_parts = [], []
-        for start in range(0, len(rays), config.render_batch):
-            colour, depth = scene.render(rays[start : start + config.render_batch], settings)
-            colour_parts.append(colour)
-            height_parts.append(depth_to_height(depth))
-        colour = torch.cat(colour_parts).clamp(0.0, 1.0).mul(255.0).round().to(torch.uint8)
-        colours[index] = colour.view(rows, cols, 3).cpu().numpy()
-        heights[index] = torch.cat(height_parts).view(rows, cols).cpu().numpy()
+    per_view = [
+        orthographic_rays(roll, pitch, config.pixel_size, device=scene.device)
+        for roll, pitch in views
+    ]
+    rays = Rays(**{f.name: torch.cat([getattr(r, f.name) for r in per_view]) for f in fields(Rays)})
+    batch = config.render_rays_per_call(scene.device)
+    colour_parts, height_parts = [], []
+    for start in range(0, len(rays), batch):
+        colour, depth = scene.render(rays[start : start + batch], settings)
+        colour_parts.append(colour.clamp(0.0, 1.0).mul(255.0).round().to(torch.uint8))
+        height_parts.append(depth_to_height(depth))
+    colours = torch.cat(colour_parts).view(len(views), rows, cols, 3).cpu().numpy()
+    heights = torch.cat(height_parts).view(len(views), rows, cols).cpu().numpy()
     return colours, heights

@@ -2,12 +2,13 @@
 
 A ray's box interval is cut into segments of `segment_length`; only segments whose midpoint lies in
 an occupied cell (the grid is dilated by one cell, so this is conservative) receive
-`samples_per_segment` stratified samples.
+`samples_per_segment` stratified samples, packed ray after ray (`RaySamples`).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
@@ -27,11 +28,15 @@ class OccupancyGrid:
         self.cell_size = torch.tensor(
             BOX_EXTENT, dtype=torch.float32, device=device
         ) / torch.tensor(cells, dtype=torch.float32, device=device)
+        self.zero = torch.zeros(3, dtype=torch.long, device=device)
+        self.last = torch.tensor(cells, dtype=torch.long, device=device) - 1
+        self.strides = torch.tensor((1, nx, nx * ny), dtype=torch.long, device=device)
         self.set_mask(torch.ones(nz, ny, nx, dtype=torch.bool, device=device))
 
     def set_mask(self, mask: torch.Tensor) -> None:
         """Replace the occupancy [Z, Y, X] and recompute the bounding box of its occupied cells."""
         self.mask = mask
+        self.full = bool(mask.all())  # every cell occupied: no lookups needed
         if not mask.any():
             self.bbox = (self.low, self.low)
             return
@@ -53,13 +58,9 @@ class OccupancyGrid:
         self.set_mask(F.max_pool3d(occupied, 3, stride=1, padding=1)[0, 0] > 0)
 
     def lookup(self, points: torch.Tensor) -> torch.Tensor:
-        """Occupancy at world points [..., 3] -> bool [...]."""
-        index = ((points - self.low) / self.cell_size).long()
-        nx, ny, nz = self.cells
-        ix = index[..., 0].clamp(0, nx - 1)
-        iy = index[..., 1].clamp(0, ny - 1)
-        iz = index[..., 2].clamp(0, nz - 1)
-        return self.mask.view(-1)[(iz * ny + iy) * nx + ix]
+        """Occupancy at world points [..., 3] -> bool [...] (points outside: the nearest cell)."""
+        index = ((points - self.low) / self.cell_size).long().clamp_(min=self.zero, max=self.last)
+        return self.mask.view(-1)[(index * self.strides).sum(dim=-1)]
 
     @property
     def fraction(self) -> float:
@@ -67,53 +68,90 @@ class OccupancyGrid:
         return float(self.mask.float().mean())
 
 
-def occupied_segments(
-    rays: Rays, occupancy: OccupancyGrid, segment_length: float
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Each ray's occupied segments, nearest first: (start [R], table [R, S] long, count [R] long).
+@dataclass
+class RaySamples:
+    """Samples packed ray after ray, nearest first: sample i lies on ray `ray[i]` at distance `t[i]`.
 
-    Segments are cut from `start`, where the ray enters the bounding box of the occupied cells;
-    table[r, :count[r]] are the occupied segment indices of ray r in increasing distance (the rest
-    of the row is padding), segment k spanning start + [k, k + 1) * segment_length.
+    The samples of ray r are `bounds[r]:bounds[r + 1]`. Packing (rather than padding every ray to
+    the longest one) keeps every tensor as long as the number of samples actually taken.
+    """
+
+    t: torch.Tensor  # [N]
+    ray: torch.Tensor  # [N] long, non-decreasing
+    bounds: torch.Tensor  # [R + 1] long
+
+    def __len__(self) -> int:
+        return self.t.shape[0]
+
+    def select(self, mask: torch.Tensor) -> RaySamples:
+        """The samples where `mask` [N] is True, still packed ray after ray."""
+        kept = torch.cat([mask.new_zeros(1, dtype=torch.long), mask.long().cumsum(0)])
+        return RaySamples(self.t[mask], self.ray[mask], kept[self.bounds])
+
+    def _prefix_sums(self, values: torch.Tensor) -> torch.Tensor:
+        """Inclusive running sums [N + 1, ...] in float64, with a leading zero row."""
+        cumulative = values.double().cumsum(0)
+        return torch.cat([cumulative.new_zeros(1, *values.shape[1:]), cumulative])
+
+    def ray_sums(self, values: torch.Tensor) -> torch.Tensor:
+        """Per-ray sums of per-sample values [N, ...] -> [R, ...] (0 for rays without samples).
+
+        Differences of float64 running sums: deterministic on every device (no atomic adds).
+        """
+        prefix = self._prefix_sums(values)
+        return (prefix[self.bounds[1:]] - prefix[self.bounds[:-1]]).to(values.dtype)
+
+    def exclusive_sums(self, values: torch.Tensor) -> torch.Tensor:
+        """Sum of the values [N] of the earlier samples of the same ray, per sample -> [N]."""
+        prefix = self._prefix_sums(values)
+        return (prefix[:-1] - prefix[self.bounds[:-1]][self.ray]).to(values.dtype)
+
+
+def occupied_samples(
+    rays: Rays,
+    occupancy: OccupancyGrid,
+    segment_length: float,
+    samples_per_segment: int,
+    generator: torch.Generator | None = None,
+) -> RaySamples:
+    """Stratified samples in each ray's occupied segments, packed ray after ray.
+
+    Segments are cut from where the ray enters the bounding box of the occupied cells, segment k
+    spanning start + [k, k + 1) * segment_length; a segment is occupied when its midpoint (clamped
+    to the ray's end) lies in an occupied cell. Each occupied segment gets `samples_per_segment`
+    strata, sampled at a uniform random offset drawn from `generator` (one per segment), or at the
+    stratum centres without a generator; samples beyond the ray's `far` are dropped.
     """
     low, high = occupancy.bbox
     entry, exit_ = box_interval(rays.origins, rays.directions, low, high)
     start = torch.maximum(rays.near, entry)
     end = torch.minimum(rays.far, exit_)
-    span = (end - start).clamp(min=0.0)
-    total = int(math.ceil(float(span.max()) / segment_length)) if len(rays) else 0
-    starts = start[:, None] + segment_length * torch.arange(total, device=start.device)
-    inside = starts < end[:, None]
-    middle = torch.minimum(starts + 0.5 * segment_length, end[:, None])
-    points = rays.origins[:, None, :] + middle[..., None] * rays.directions[:, None, :]
-    occupied = inside & occupancy.lookup(points)
-    count = occupied.sum(dim=1)
-    table = torch.zeros(
-        len(rays), int(count.max()) if total else 0, dtype=torch.long, device=start.device
-    )
+    crossing = torch.nonzero(end > start)[:, 0]  # only these rays are cut into segments
+    start_c, end_c = start[crossing], end[crossing]
+    span = float((end_c - start_c).max()) if len(crossing) else 0.0
+    total = int(math.ceil(span / segment_length))
+    starts = start_c[:, None] + segment_length * torch.arange(total, device=start.device)
+    inside = starts < end_c[:, None]
+    if occupancy.full:
+        occupied = inside
+    else:
+        middle = torch.minimum(starts + 0.5 * segment_length, end_c[:, None])
+        points = torch.addcmul(
+            rays.origins[crossing, None, :], middle[..., None], rays.directions[crossing, None, :]
+        )
+        occupied = inside & occupancy.lookup(points)
     ray, segment = torch.nonzero(occupied, as_tuple=True)
-    rank = occupied.cumsum(dim=1)[ray, segment] - 1
-    table[ray, rank] = segment
-    return start, table, count
-
-
-def segment_samples(
-    rays: Rays,
-    start: torch.Tensor,
-    segments: torch.Tensor,
-    segment_valid: torch.Tensor,
-    segment_length: float,
-    samples_per_segment: int,
-    jitter: torch.Tensor | float,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Stratified distances inside the given segments: (t [R, G*K], valid [R, G*K]).
-
-    `jitter` in [0, 1) is the offset of each sample inside its stratum ([R, G] tensor, or 0.5 for the
-    stratum centres used when rendering).
-    """
+    ray = crossing[ray]
     step = segment_length / samples_per_segment
-    offsets = torch.arange(samples_per_segment, device=segments.device, dtype=torch.float32)
-    offsets = offsets + jitter[..., None] if torch.is_tensor(jitter) else offsets + jitter
-    t = start[:, None, None] + segments[..., None] * segment_length + offsets * step
-    valid = segment_valid[..., None] & (t < rays.far[:, None, None])
-    return t.flatten(1), valid.flatten(1)
+    offsets = torch.arange(samples_per_segment, device=start.device, dtype=torch.float32)
+    if generator is None:
+        offsets = (offsets + 0.5).expand(len(ray), -1)
+    else:
+        jitter = torch.rand(len(ray), 1, generator=generator, device=start.device)
+        offsets = offsets + jitter
+    t = (start[ray, None] + segment[:, None] * segment_length + offsets * step).flatten()
+    ray = ray.repeat_interleave(samples_per_segment)
+    keep = t < rays.far[ray]
+    t, ray = t[keep], ray[keep]
+    bounds = torch.searchsorted(ray, torch.arange(len(rays) + 1, device=ray.device))
+    return RaySamples(t, ray, bounds)
