@@ -239,7 +239,8 @@ def fit_summary(trainer: Any) -> str:
     """Where a finished fit left its run, its best checkpoint and the command that tests it."""
     from lightning.pytorch.cli import SaveConfigCallback
 
-    folder = Path(trainer.log_dir or ".")
+    logger = trainer.logger  # its own log_dir: Trainer.log_dir is a collective call under DDP
+    folder = Path(getattr(logger, "log_dir", None) or trainer.default_root_dir)
     lines = [f"run folder: {folder}"]
     checkpoint = trainer.checkpoint_callback
     best = getattr(checkpoint, "best_model_path", "") or getattr(checkpoint, "last_model_path", "")

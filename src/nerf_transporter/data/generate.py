@@ -494,8 +494,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Generate oracle demonstrations with their captures and imagery.",
         formatter_class=HelpFormatter,
     )
-    parser.add_argument("--task", required=True, choices=sorted(TASKS), help="task family")
-    parser.add_argument("--setting", default="normal", choices=SETTINGS, help="target tilts")
+    # validated by GenerationConfig, whose one-line errors name the valid values
+    parser.add_argument("--task", required=True, help=f"one of {', '.join(sorted(TASKS))}")
+    parser.add_argument("--setting", default="normal", help=f"one of {', '.join(SETTINGS)}")
     parser.add_argument("--split", default="train", choices=SPLITS, help="seed range")
     parser.add_argument("--episodes", type=int, required=True, help="successful episodes wanted")
     parser.add_argument(
