@@ -29,7 +29,6 @@ from nerf_transporter.data.generate import (
     pose_error_text,
 )
 from nerf_transporter.data.labels import (
-    N_ROTATIONS,
     action_from_labels,
     heightmap_labels,
     mira_labels,
@@ -125,7 +124,7 @@ def main() -> None:
     parser.add_argument("--demos", type=int, default=20)
     parser.add_argument("--data-dir", default="data/benchmarks")
     parser.add_argument("--pixel-size", type=float, default=g.PIXEL_SIZE)
-    parser.add_argument("--rotations", type=int, default=N_ROTATIONS, help="rotation bins")
+    parser.add_argument("--rotations", type=int, default=g.N_ROTATIONS, help="rotation bins")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()

@@ -67,7 +67,7 @@ def _transport_match(pick_image, pick_pixel, place_image, place_pixel, rotation_
     """Overlap between the pick content turned by the bin's angle and the place content."""
     centre = A.identity_transform(SHAPE).centre
     to_centre = A.Se2Transform(0.0, tuple(centre - pick_pixel), SHAPE)
-    angle = g.bin_to_angle(rotation_bin, L.N_ROTATIONS)
+    angle = g.bin_to_angle(rotation_bin, g.N_ROTATIONS)
     rotate = A.Se2Transform(angle, tuple(np.asarray(place_pixel) - centre), SHAPE)
     moved = rotate.apply_image(to_centre.apply_image(pick_image)) > 0
     target = place_image > 0

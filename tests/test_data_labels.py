@@ -6,7 +6,7 @@ import pytest
 from nerf_transporter import geometry as g
 from nerf_transporter.data import labels as L
 
-HALF_BIN = math.pi / L.N_ROTATIONS
+HALF_BIN = math.pi / g.N_ROTATIONS
 HALF_STEP = (math.pi / 3) / 6 / 2  # normal grid: 7 views over [-pi/6, pi/6]
 
 

@@ -226,6 +226,9 @@ def nearest_view(roll: float, pitch: float, grid: np.ndarray) -> int:
 # ---------------------------------------------------------------------------------------------
 
 
+N_ROTATIONS = 36  # bins of the place yaw relative to the pick (10 degrees each)
+
+
 def angle_to_bin(angle: float, n_rotations: int) -> int:
     """Nearest of `n_rotations` bins over [0, 2pi) (bin k is the angle 2 pi k / n)."""
     return int(round((float(angle) % (2 * math.pi)) / (2 * math.pi / n_rotations))) % n_rotations

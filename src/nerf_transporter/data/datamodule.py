@@ -32,15 +32,15 @@ from nerf_transporter.data.augment import augment_view_action, identity_transfor
 from nerf_transporter.data.generate import GenerationConfig, action_from_meta, generate_dataset
 from nerf_transporter.data.heightmap import heightmap_from_rgbd
 from nerf_transporter.data.labels import (
-    N_ROTATIONS,
     ViewAction,
     continuous_pixel,
     labels_from_view_action,
     to_view_frames,
 )
 from nerf_transporter.data.preprocess import network_input
+from nerf_transporter.sim import cameras
 
-INPUT_KINDS = ("imagery", "heightmap", "state")
+INPUT_KINDS = ("imagery", "heightmap", "state")  # what a method reads (its `input_kind`)
 FILES_PER_KIND = {"imagery": ["imagery"], "heightmap": ["rgbd"], "state": []}
 
 
@@ -149,7 +149,7 @@ class DemoDataset(Dataset):
         pixel_size: float = g.PIXEL_SIZE,
         n_negative_views: int = 0,
         augment: bool = False,
-        n_rotations: int = N_ROTATIONS,
+        n_rotations: int = g.N_ROTATIONS,
         views: np.ndarray | None = None,
         negative_view_scale: float | None = None,
     ) -> None:
@@ -247,9 +247,9 @@ class RavensDataModule(pl.LightningDataModule):
         input_kind: str | None = None,
         n_val_demos: int = 0,
         samples_per_epoch: int | None = None,
-        n_rotations: int = N_ROTATIONS,
+        n_rotations: int = g.N_ROTATIONS,
         nerf_views: int = 30,
-        nerf_image_size: tuple[int, int] = (480, 640),
+        nerf_image_size: tuple[int, int] = cameras.IMAGE_SIZE,
         imagery_config: dict[str, Any] | None = None,
         generate_workers: int = 1,
         test_episodes: int = 100,

@@ -40,7 +40,7 @@ from nerf_transporter.console import HelpFormatter
 from nerf_transporter.data import episode as ep
 from nerf_transporter.data.labels import heightmap_labels, mira_labels
 from nerf_transporter.parallel import exit_if_orphaned, process_pool
-from nerf_transporter.sim import SETTINGS, TASKS, fingerprint
+from nerf_transporter.sim import SETTINGS, TASKS, cameras, fingerprint
 from nerf_transporter.splits import SPLITS, split_seed
 
 IMAGERY_KINDS = ("nerf", "oracle")
@@ -58,7 +58,7 @@ class GenerationConfig:
     imagery: str = "nerf"
     pixel_size: float = g.PIXEL_SIZE
     nerf_views: int = 30
-    nerf_image_size: tuple[int, int] = (480, 640)
+    nerf_image_size: tuple[int, int] = cameras.IMAGE_SIZE
     imagery_options: dict[str, Any] = field(default_factory=dict)  # ImageryConfig fields
 
     def __post_init__(self) -> None:
@@ -152,7 +152,7 @@ class GenerationConfig:
             words.append(f"--pixel-size {self.pixel_size:g}")
         if self.nerf_views != 30:
             words.append(f"--nerf-views {self.nerf_views}")
-        if self.nerf_image_size != (480, 640):
+        if self.nerf_image_size != cameras.IMAGE_SIZE:
             words.append(f"--nerf-image-size {self.nerf_image_size[0]}x{self.nerf_image_size[1]}")
         words += [
             f"--imagery-option {key}={value}" for key, value in sorted(self.imagery_options.items())
@@ -511,7 +511,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--nerf-views", type=int, default=30, help="RGB views stored (0: none, oracle only)"
     )
-    parser.add_argument("--nerf-image-size", type=_image_size, default=(480, 640), help="ROWSxCOLS")
+    parser.add_argument(
+        "--nerf-image-size", type=_image_size, default=cameras.IMAGE_SIZE, help="ROWSxCOLS"
+    )
     parser.add_argument(
         "--imagery-option",
         type=imagery_option,

@@ -22,8 +22,6 @@ import numpy as np
 
 from nerf_transporter import geometry as g
 
-N_ROTATIONS = 36
-
 Action = dict[str, g.Pose]
 
 
@@ -82,7 +80,7 @@ def continuous_pixel(position: np.ndarray, pixel_size: float) -> np.ndarray:
 def labels_from_view_action(
     view_action: ViewAction,
     pixel_size: float = g.PIXEL_SIZE,
-    n_rotations: int = N_ROTATIONS,
+    n_rotations: int = g.N_ROTATIONS,
 ) -> Labels:
     """Labels of an action given in view frames; ValueError if a pixel falls outside the image."""
     shape = g.image_shape(pixel_size)
@@ -112,14 +110,14 @@ def mira_labels(
     action: Action,
     grid: np.ndarray,
     pixel_size: float = g.PIXEL_SIZE,
-    n_rotations: int = N_ROTATIONS,
+    n_rotations: int = g.N_ROTATIONS,
 ) -> Labels:
     """Labels of the imagery method: place view nearest to the place tilt, pixel and yaw in it."""
     return labels_from_view_action(to_view_frames(action, grid), pixel_size, n_rotations)
 
 
 def heightmap_labels(
-    action: Action, pixel_size: float = g.PIXEL_SIZE, n_rotations: int = N_ROTATIONS
+    action: Action, pixel_size: float = g.PIXEL_SIZE, n_rotations: int = g.N_ROTATIONS
 ) -> Labels:
     """Labels of the top-down methods: pixels, rotation bin, world place z, roll and pitch."""
     return mira_labels(action, np.zeros((1, 2)), pixel_size, n_rotations)
@@ -135,7 +133,7 @@ def action_from_labels(
     place_view: tuple[float, float] = (0.0, 0.0),
     place_tilt: tuple[float, float] = (0.0, 0.0),
     pixel_size: float = g.PIXEL_SIZE,
-    n_rotations: int = N_ROTATIONS,
+    n_rotations: int = g.N_ROTATIONS,
 ) -> Action:
     """Predicted labels -> action: upright pick at the top-down pixel and height; place at the pixel
     and height of view `place_view` = (roll, pitch), oriented R_v . R_tilt(place_tilt) . Rz(theta).

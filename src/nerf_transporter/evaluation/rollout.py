@@ -33,12 +33,14 @@ import torch
 from tqdm.auto import tqdm
 
 from nerf_transporter import geometry
-from nerf_transporter.data.generate import IMAGERY_RUNTIME_FIELDS, pose_error_text
+from nerf_transporter.data.datamodule import INPUT_KINDS
+from nerf_transporter.data.generate import IMAGERY_KINDS, IMAGERY_RUNTIME_FIELDS, pose_error_text
 from nerf_transporter.data.heightmap import heightmap_from_rgbd
 from nerf_transporter.data.labels import mira_labels
 from nerf_transporter.evaluation.cache import ImageryCache, config_hash
 from nerf_transporter.evaluation.video import EpisodeVideo, plan_panel
 from nerf_transporter.parallel import available_cores
+from nerf_transporter.sim import cameras
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
 if TYPE_CHECKING:
@@ -46,11 +48,9 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-INPUT_KINDS = ("imagery", "heightmap", "state")
 POSE_ERROR_KEYS = ("position_error", "tilt_error", "yaw_error")  # metres, radians, radians
 NOT_ACHIEVED = "task not achieved"
 DEFAULT_CACHE_DIR = "data/imagery-cache"
-IMAGERY_KINDS = ("nerf", "oracle")
 
 
 class Policy(Protocol):
@@ -81,7 +81,7 @@ class EvaluationSpec:
     imagery_config: Any = None
     pixel_size: float = geometry.PIXEL_SIZE
     nerf_views: int = 30
-    nerf_image_size: tuple[int, int] = (480, 640)
+    nerf_image_size: tuple[int, int] = cameras.IMAGE_SIZE
     cache_dir: str | None = DEFAULT_CACHE_DIR
 
     def __post_init__(self) -> None:

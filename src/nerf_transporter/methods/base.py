@@ -18,7 +18,6 @@ from nerf_transporter.models.transport import placement_cross_entropy, unravel_a
 
 Batch = dict[str, torch.Tensor]
 Action = dict[str, g.Pose]
-INPUT_KINDS = ("imagery", "heightmap", "state")
 # FCN width of the image methods: at 16 a full-size mira training step takes 0.5 s with 2 threads on
 # the 2-core development CPU (README, "Speed"); Transporter networks use 64 (set
 # model.init_args.width on a GPU).
@@ -158,7 +157,7 @@ class AttentionTransportMethod(Method):
         lr: float = 1e-4,
         log_images_every_n_steps: int = 250,
         pixel_size: float = g.PIXEL_SIZE,
-        n_rotations: int = 36,
+        n_rotations: int = g.N_ROTATIONS,
         crop_size: int = 64,
         width: int = DEFAULT_WIDTH,
         feature_channels: int = 3,

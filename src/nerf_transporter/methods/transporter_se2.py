@@ -30,7 +30,7 @@ class TransporterSE2(AttentionTransportMethod):
         lr: float = 1e-4,
         log_images_every_n_steps: int = 250,
         pixel_size: float = g.PIXEL_SIZE,
-        n_rotations: int = 36,
+        n_rotations: int = g.N_ROTATIONS,
         crop_size: int = 64,
         width: int = DEFAULT_WIDTH,
         feature_channels: int = 3,

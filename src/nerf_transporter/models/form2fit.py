@@ -11,6 +11,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from nerf_transporter import geometry as g
 from nerf_transporter.models.attention import Attention
 from nerf_transporter.models.resnet import ResNet43_8s
 from nerf_transporter.models.transport import bin_angles, rotated_crops
@@ -22,7 +23,7 @@ class Form2FitNets(nn.Module):
     def __init__(
         self,
         in_channels: int = 6,
-        n_rotations: int = 36,
+        n_rotations: int = g.N_ROTATIONS,
         crop_size: int = 64,
         width: int = 64,
         descriptor_dim: int = 16,

@@ -10,6 +10,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from nerf_transporter import geometry as g
 from nerf_transporter.models.resnet import ResNet43_8s
 from nerf_transporter.models.transport import bin_angles, rotated_crops
 
@@ -22,7 +23,7 @@ class PoseRegression(nn.Module):
     def __init__(
         self,
         in_channels: int = 6,
-        n_rotations: int = 36,
+        n_rotations: int = g.N_ROTATIONS,
         crop_size: int = 64,
         width: int = 64,
         feature_channels: int = 3,

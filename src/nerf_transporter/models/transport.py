@@ -18,6 +18,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from nerf_transporter import geometry as g
 from nerf_transporter.models.resnet import ResNet43_8s
 
 
@@ -196,7 +197,7 @@ class Transport(nn.Module):
         self,
         in_channels: int = 6,
         feature_channels: int = 3,
-        n_rotations: int = 36,
+        n_rotations: int = g.N_ROTATIONS,
         crop_size: int = 64,
         width: int = 64,
     ) -> None:

@@ -68,7 +68,10 @@ def look_at(
     return pose
 
 
-def rgbd_cameras(image_size: tuple[int, int] = (480, 640), focal: float = 450.0) -> list[Camera]:
+IMAGE_SIZE = (480, 640)  # (rows, cols) of the RGB-D and NeRF cameras
+
+
+def rgbd_cameras(image_size: tuple[int, int] = IMAGE_SIZE, focal: float = 450.0) -> list[Camera]:
     """The three RealSense-like cameras of Ravens: front, left and right, 0.75 m high."""
     intrinsics = intrinsics_matrix(focal, image_size)
     return [
@@ -78,7 +81,7 @@ def rgbd_cameras(image_size: tuple[int, int] = (480, 640), focal: float = 450.0)
 
 
 def nerf_cameras(
-    count: int = 30, image_size: tuple[int, int] = (480, 640), focal: float = 450.0
+    count: int = 30, image_size: tuple[int, int] = IMAGE_SIZE, focal: float = 450.0
 ) -> list[Camera]:
     """`count` cameras on a spiral around the workspace centre (one turn, elevation rising from 35
     to 75 degrees), each looking at the centre; `focal` is for 480 x 640 and scales with the width."""

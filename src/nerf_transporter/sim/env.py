@@ -139,7 +139,7 @@ class RavensEnv(gym.Env):
         task: Task,
         rigs: Sequence[str] = ("state",),
         nerf_views: int = 30,
-        nerf_image_size: tuple[int, int] = (480, 640),
+        nerf_image_size: tuple[int, int] = cameras.IMAGE_SIZE,
         render_mode: str | None = None,
         nerf_show_robot: bool = False,
     ) -> None:
@@ -305,7 +305,7 @@ def make_env(
     *,
     rigs: Sequence[str] = ("state",),
     nerf_views: int = 30,
-    nerf_image_size: tuple[int, int] = (480, 640),
+    nerf_image_size: tuple[int, int] = cameras.IMAGE_SIZE,
     render_mode: str | None = None,
     nerf_show_robot: bool = False,
 ) -> RavensEnv:
