@@ -153,3 +153,10 @@ def test_the_cache_key_carries_the_world_fingerprint(monkeypatch):
     before = spec.imagery_key()
     monkeypatch.setattr(rollout, "world_fingerprint", lambda: "another-world")
     assert spec.imagery_key() != before
+
+
+def test_progress_bars_leave_no_carriage_returns_in_logs(capsys):
+    """Where stderr is a file or a pipe (CI logs, nohup), no bar frames are written."""
+    with Evaluator(EvaluationSpec(task="block-insertion", imagery="oracle")) as evaluator:
+        evaluator.run(FixedPolicy(), [1], progress=True)
+    assert "\r" not in capsys.readouterr().err

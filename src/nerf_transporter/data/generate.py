@@ -413,7 +413,7 @@ def generate_dataset(
         initial=min(len(done), target),
         desc=config.dataset_name(),
         unit="episode",
-        disable=not progress,
+        disable=None if progress else True,  # None: no bar where stderr is not a terminal
     )
     failures, failures_in_a_row, seconds = 0, 0, []
     pending: dict[cf.Future, int] = {}

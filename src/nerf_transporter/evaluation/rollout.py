@@ -488,7 +488,15 @@ class Evaluator:
             raise ValueError(f"workers must be >= 1, got {workers}")
         workers = min(workers, len(seeds)) or 1
         successes, errors = 0, 0
-        with tqdm(total=len(seeds), desc=desc, unit="episode", disable=not progress) as bar:
+        # disable=None: no bar where stderr is not a terminal (logs get no carriage-return frames);
+        # leave=False: the bar goes when done, inside Lightning's own bar, and a summary line stays
+        with tqdm(
+            total=len(seeds),
+            desc=desc,
+            unit="episode",
+            disable=None if progress else True,
+            leave=False,
+        ) as bar:
 
             def count(result: EpisodeResult) -> None:
                 nonlocal successes, errors

@@ -213,8 +213,8 @@ class ClosedLoopTest:
             wall_s=time.perf_counter() - start,
         )
         for name in ("success_rate", "ci_low", "ci_high", "episodes", "errors"):
-            if record[name] is not None:
-                self.log(f"test/{name}", float(record[name]))
+            if record[name] is not None:  # rounded for Lightning's table; the file keeps all digits
+                self.log(f"test/{name}", round(float(record[name]), 4))
         self.test_record = record
         # trainer.log_dir is a collective call under DDP: every process asks for it
         directory = Path(checkpoint).parent if checkpoint else Path(self.trainer.log_dir or ".")
