@@ -34,8 +34,7 @@ from tensorboard.compat.proto.summary_pb2 import Summary
 from torch.utils.tensorboard.summary import hparams as hparams_summary
 from torchmetrics.aggregation import SumMetric
 
-from nerf_transporter import geometry
-from nerf_transporter.drawing import captioned, draw_marker
+from nerf_transporter.drawing import captioned
 from nerf_transporter.evaluation.metrics import SuccessRate, wilson_interval
 from nerf_transporter.evaluation.rollout import (
     DEFAULT_CACHE_DIR,
@@ -43,7 +42,7 @@ from nerf_transporter.evaluation.rollout import (
     EvaluationSpec,
     Evaluator,
 )
-from nerf_transporter.evaluation.video import gif_bytes
+from nerf_transporter.evaluation.video import draw_action, gif_bytes
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.splits import split_seed
 
@@ -63,12 +62,10 @@ def rollout_column(result: EpisodeResult, border: int = 4) -> np.ndarray:
     action with its pick (ring) and place (cross) drawn in, the view after; framed by outcome."""
     before, after = (np.array(frame) for frame in result.frames)
     if result.action is not None:
-        pixel_size = (geometry.BOUNDS[0, 1] - geometry.BOUNDS[0, 0]) / before.shape[1]
-        for name, kind in (("pick", "ring"), ("place", "cross")):
-            pixel = geometry.world_to_pixel(np.array(result.action[name][:3]), pixel_size)
-            draw_marker(before, pixel, kind)
-    outcome = "success" if result.success else result.failure_text() or result.outcome
-    column = captioned(np.concatenate([before, after], axis=0), [f"seed {result.seed}", outcome])
+        draw_action(before, result.action["pick"][:3], result.action["place"][:3])
+    column = captioned(
+        np.concatenate([before, after], axis=0), [f"seed {result.seed}", result.outcome_text()]
+    )
     framed = np.empty(
         (column.shape[0] + 2 * border, column.shape[1] + 2 * border, 3), dtype=np.uint8
     )

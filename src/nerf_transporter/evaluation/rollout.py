@@ -196,6 +196,10 @@ class EpisodeResult:
         record.pop("frames")
         return {"outcome": self.outcome} | record
 
+    def outcome_text(self) -> str:
+        """ "success", or why not (`failure_text`): the caption of strips and videos."""
+        return "success" if self.success else str(self.failure_text())
+
     def failure_text(self) -> str | None:
         """Why the episode did not succeed: the error, or the failure reason with the pose errors
         where the task was simply not achieved."""
@@ -432,9 +436,7 @@ class Evaluator:
             frames=np.stack(frames) if record_frames and len(frames) == 2 else None,
         )
         if video is not None:
-            written = video.close(
-                "success" if success else str(result.failure_text()), result.to_json()
-            )
+            written = video.close(result.outcome_text(), result.to_json())
             result.video = None if written is None else str(written)
         return result
 

@@ -14,6 +14,7 @@ import io
 import json
 import logging
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,16 @@ def _fit_height(image: np.ndarray, height: int) -> np.ndarray:
     return cv2.resize(image, (width, height), interpolation=cv2.INTER_NEAREST)
 
 
+def draw_action(
+    top_down: np.ndarray, pick_xyz: Sequence[float], place_xyz: Sequence[float]
+) -> np.ndarray:
+    """Ring the pick and cross the place (world points) on a top-down view, in place."""
+    pixel_size = (geometry.BOUNDS[0, 1] - geometry.BOUNDS[0, 0]) / top_down.shape[1]
+    draw_marker(top_down, geometry.world_to_pixel(np.asarray(pick_xyz), pixel_size), "ring")
+    draw_marker(top_down, geometry.world_to_pixel(np.asarray(place_xyz), pixel_size), "cross")
+    return top_down
+
+
 def plan_panel(
     top_down: np.ndarray,
     action: dict[str, tuple[np.ndarray, np.ndarray]],
@@ -43,10 +54,7 @@ def plan_panel(
 ) -> np.ndarray:
     """The top-down view with pick (ring) and place (cross), and the chosen view (its colour
     image, the place pixel (row, col) in it, its title) beside it."""
-    top_down = np.array(top_down)
-    pixel_size = (geometry.BOUNDS[0, 1] - geometry.BOUNDS[0, 0]) / top_down.shape[1]
-    draw_marker(top_down, geometry.world_to_pixel(action["pick"][0], pixel_size), "ring")
-    draw_marker(top_down, geometry.world_to_pixel(action["place"][0], pixel_size), "cross")
+    top_down = draw_action(np.array(top_down), action["pick"][0], action["place"][0])
     panels = [captioned(top_down, ["top-down: pick, place"])]
     if chosen_view is not None:
         colour, place_pixel, title = chosen_view
