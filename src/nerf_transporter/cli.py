@@ -28,6 +28,14 @@ TOOLS: dict[str, tuple[str, str]] = {
         "episodes, seeds, imagery quality (--verify)",
     ),
     "report": ("nerf_transporter.evaluation.report:main", "results table (markdown or --csv)"),
+    "try": (
+        "nerf_transporter.evaluation.pretrained:try_main",
+        "run a shipped pretrained policy on a few test episodes, write videos",
+    ),
+    "export-pretrained": (
+        "nerf_transporter.evaluation.pretrained:export_main",
+        "reduce a trained checkpoint to a shipped pretrained policy",
+    ),
     "evaluate-checkpoints": (
         "nerf_transporter.evaluation.checkpoints:main",
         "closed-loop success of every checkpoint of a run, to pick the one to test",

@@ -1,0 +1,285 @@
+"""Pretrained policies shipped in the package (`nerf_transporter/pretrained/`), and the commands
+around them: `nerf-transporter try` (evaluate one on a few test episodes and write videos) and
+`nerf-transporter export-pretrained` (reduce a trained checkpoint to a shipped policy).
+
+A shipped policy is a Lightning checkpoint reduced to what acting needs: the weights, the method's
+and the DataModule's hyper-parameters, the step, and a `provenance` entry (commit, config,
+validation and test success). Only tensors and plain values remain, so it loads with
+`torch.load(..., weights_only=True)`, with `lightning test --ckpt_path` and with
+`evaluation.checkpoints.load_checkpoint`. `pretrained/manifest.json` lists them with the same
+provenance.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+import yaml
+
+from nerf_transporter.console import HelpFormatter
+from nerf_transporter.evaluation.checkpoints import load_checkpoint
+from nerf_transporter.evaluation.report import cell
+from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
+from nerf_transporter.evaluation.testing import checkpoint_step, results_record, write_json
+from nerf_transporter.parallel import share_cores
+from nerf_transporter.splits import split_seed
+
+PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "pretrained"
+MANIFEST = "manifest.json"
+# what a shipped policy keeps of a Lightning checkpoint (optimizer and loop states are dropped)
+KEPT_KEYS = (
+    "state_dict",
+    "hyper_parameters",
+    "hparams_name",
+    "datamodule_hyper_parameters",
+    "datamodule_hparams_name",
+    "global_step",
+    "epoch",
+    "pytorch-lightning_version",
+)
+TEST_FIGURES = ("episodes", "successes", "success_rate", "ci_low", "ci_high", "errors", "setting")
+
+
+def policy_file_name(task: str, method: str) -> str:
+    return f"{task}-{method}.ckpt"
+
+
+def load_manifest(folder: Path = PRETRAINED_DIR) -> list[dict[str, Any]]:
+    """The shipped policies' entries (empty when none is shipped)."""
+    path = folder / MANIFEST
+    if not path.exists():
+        return []
+    try:
+        return json.loads(path.read_text())["policies"]
+    except (json.JSONDecodeError, KeyError, TypeError) as error:
+        raise ValueError(f"{path} is not a manifest of pretrained policies: {error}") from error
+
+
+def find_policy(task: str, method: str, folder: Path = PRETRAINED_DIR) -> Path:
+    """The shipped policy for (task, method); a ValueError lists the shipped ones otherwise."""
+    entries = load_manifest(folder)
+    for entry in entries:
+        if entry["task"] == task and entry["method"] == method:
+            return folder / entry["file"]
+    shipped = ", ".join(f"{e['task']}/{e['method']}" for e in entries) or "none"
+    raise ValueError(f"no pretrained {method} policy for {task} is shipped (shipped: {shipped})")
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def run_config(checkpoint: Path) -> dict[str, Any]:
+    """The resolved config LightningCLI saved in the checkpoint's run folder."""
+    path = checkpoint.resolve().parent.parent / "config.yaml"
+    if not path.is_file():
+        raise ValueError(f"{checkpoint} is not in a run folder with its config.yaml ({path})")
+    return yaml.safe_load(path.read_text())
+
+
+def validation_figures(checkpoint: dict[str, Any], config: dict[str, Any]) -> dict[str, Any]:
+    """The closed-loop validation success the checkpoint was chosen by (its ModelCheckpoint's
+    score when it was saved) and the episodes of a validation round (the run's config)."""
+    figures: dict[str, Any] = {"success_rate": None, "episodes": None}
+    for key, state in checkpoint.get("callbacks", {}).items():
+        if key.startswith("ModelCheckpoint") and state.get("monitor") == "eval/success_rate":
+            score = state.get("current_score")
+            figures["success_rate"] = None if score is None else float(score)
+    for callback in config.get("trainer", {}).get("callbacks") or []:
+        if str(callback.get("class_path", "")).endswith("SuccessRateCallback"):
+            figures["episodes"] = callback.get("init_args", {}).get("episodes")
+    return figures
+
+
+def export_pretrained(
+    checkpoint: Path,
+    results: Path,
+    out_folder: Path,
+    *,
+    config: str,
+    commit: str,
+) -> dict[str, Any]:
+    """Write `<task>-<method>.ckpt` into `out_folder` from a trained checkpoint and the results file
+    of its `lightning test`, and add (or replace) its entry in the folder's manifest."""
+    state = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    resolved = run_config(checkpoint)
+    record = json.loads(results.read_text())
+    if Path(str(record.get("checkpoint"))).name != checkpoint.name:
+        raise ValueError(
+            f"{results} tests {record.get('checkpoint')}, not {checkpoint}; export the checkpoint "
+            "together with its own results file"
+        )
+    if record.get("split") != "test" or record.get("errors"):
+        raise ValueError(f"{results} is not an error-free test of the checkpoint")
+    provenance = {
+        "task": record["task"],
+        "method": record["method"],
+        "imagery": record.get("imagery"),
+        "config": config,
+        "commit": commit,
+        "trained_steps": resolved.get("trainer", {}).get("max_steps"),
+        "step": int(state["global_step"]),
+        "validation": validation_figures(state, resolved),
+        "test": {key: record[key] for key in TEST_FIGURES}
+        | {"seeds": [r["seed"] for r in record["episode_results"]], "world": record["world"]},
+        "source": checkpoint.name,
+    }
+    reduced = {key: state[key] for key in KEPT_KEYS if key in state} | {"provenance": provenance}
+    name = policy_file_name(record["task"], record["method"])
+    out_folder.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(dir=out_folder, prefix=f".{name}-")
+    os.close(handle)
+    try:
+        torch.save(reduced, temporary)
+        torch.load(temporary, map_location="cpu", weights_only=True)  # ships only plain data
+        os.replace(temporary, out_folder / name)
+    finally:
+        if os.path.exists(temporary):
+            os.unlink(temporary)
+    entry = {"file": name, "bytes": (out_folder / name).stat().st_size}
+    entry |= {"sha256": sha256(out_folder / name)} | provenance
+    entries = [
+        e
+        for e in load_manifest(out_folder)
+        if (e["task"], e["method"]) != (entry["task"], entry["method"])
+    ]
+    entries = sorted([*entries, entry], key=lambda e: (e["task"], e["method"]))
+    write_json(out_folder / MANIFEST, {"policies": entries})
+    return entry
+
+
+def try_policy(
+    task: str,
+    method: str,
+    episodes: int,
+    video_dir: Path | None,
+    *,
+    folder: Path = PRETRAINED_DIR,
+    cache_dir: str | None = DEFAULT_CACHE_DIR,
+    workers: int | None = None,
+) -> dict[str, Any]:
+    """Evaluate a shipped policy on the first `episodes` test seeds; a results record."""
+    path = find_policy(task, method, folder)
+    model, datamodule = load_checkpoint(path, torch.device("cpu"))
+    spec = EvaluationSpec.from_datamodule(datamodule, split="test", cache_dir=cache_dir)
+    seeds = [split_seed("test", index) for index in range(episodes)]
+    workers, threads = share_cores(len(seeds), workers)
+    start = time.perf_counter()
+    with Evaluator(spec) as evaluator:
+        results = evaluator.run(
+            model,
+            seeds,
+            progress=True,
+            desc=f"{task} {method}",
+            workers=workers,
+            threads=threads,
+            video_dir=video_dir,
+        )
+    return results_record(
+        [result.to_json() for result in results],
+        method=model,
+        spec=spec,
+        split="test",
+        checkpoint=str(path),
+        global_step=checkpoint_step(path),
+        wall_s=time.perf_counter() - start,
+    )
+
+
+def shipped_table(entries: list[dict[str, Any]]) -> str:
+    """Markdown table of the shipped policies: config, commit, step and measured success."""
+    lines = [
+        "| task | method | config | commit | step | test success (n, 95% CI) |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for e in entries:
+        lines.append(
+            f"| {e['task']} | {e['method']} | `{e['config']}` | {e['commit'][:7]} | {e['step']} "
+            f"| {cell(e['test'])} |"
+        )
+    return "\n".join(lines)
+
+
+def try_main(argv: list[str] | None = None) -> int:
+    """`nerf-transporter try`: a shipped policy on a few test episodes, with videos."""
+    parser = argparse.ArgumentParser(
+        prog="nerf-transporter try",
+        description="Evaluate a pretrained policy shipped with the package on the first test "
+        "episodes and write one captioned mp4 per episode. No training or data needed.",
+        formatter_class=HelpFormatter,
+    )
+    parser.add_argument("--task", default="block-insertion", help="task of the policy")
+    parser.add_argument("--method", default="mira", help="method of the policy")
+    parser.add_argument("--episodes", type=int, default=2, help="test episodes to run")
+    parser.add_argument("--video", type=Path, default=Path("videos/try"), help="mp4 folder")
+    parser.add_argument(
+        "--eval-workers", type=int, default=None, help="processes (default: one per core)"
+    )
+    parser.add_argument("--list", action="store_true", help="list the shipped policies and stop")
+    args = parser.parse_args(argv)
+    if args.episodes < 1:
+        parser.error("--episodes must be >= 1")
+    try:
+        entries = load_manifest()
+        if args.list:
+            print(shipped_table(entries))
+            return 0
+        record = try_policy(
+            args.task, args.method, args.episodes, args.video, workers=args.eval_workers
+        )
+    except ValueError as error:
+        print(f"nerf-transporter try: {error}", file=sys.stderr)
+        return 2
+    for result in record["episode_results"]:
+        print(
+            f"seed {result['seed']}: {result['outcome']}"
+            + (f" ({result['failure']})" if result.get("failure") else "")
+        )
+    print(f"{args.task} {args.method}: {cell(record)} in {record['wall_s']:.0f} s")
+    print(f"videos: {args.video}/")
+    return 0
+
+
+def export_main(argv: list[str] | None = None) -> int:
+    """`nerf-transporter export-pretrained`: a trained checkpoint -> a shipped policy."""
+    parser = argparse.ArgumentParser(
+        prog="nerf-transporter export-pretrained",
+        description="Reduce a trained checkpoint to weights and hyper-parameters, with its "
+        "provenance and the test success of its results file, into the pretrained folder "
+        "(and its manifest.json).",
+        formatter_class=HelpFormatter,
+    )
+    parser.add_argument("checkpoint", type=Path, help="a checkpoint written by `lightning fit`")
+    parser.add_argument("results", type=Path, help="its results file from `lightning test`")
+    parser.add_argument("--config", required=True, help="the config(s) the run was trained with")
+    parser.add_argument("--commit", required=True, help="the git commit the run was trained at")
+    parser.add_argument("--out", type=Path, default=PRETRAINED_DIR, help="pretrained folder")
+    args = parser.parse_args(argv)
+    for path in (args.checkpoint, args.results):
+        if not path.is_file():
+            print(f"nerf-transporter export-pretrained: no such file: {path}", file=sys.stderr)
+            return 2
+    try:
+        entry = export_pretrained(
+            args.checkpoint,
+            args.results,
+            args.out,
+            config=args.config,
+            commit=args.commit,
+        )
+    except (ValueError, KeyError, json.JSONDecodeError) as error:
+        print(f"nerf-transporter export-pretrained: {error}", file=sys.stderr)
+        return 2
+    print(
+        f"wrote {args.out / entry['file']} ({entry['bytes'] / 1e6:.2f} MB): {cell(entry['test'])}"
+    )
+    return 0

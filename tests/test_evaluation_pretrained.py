@@ -1,0 +1,184 @@
+"""Pretrained policies: export a trained checkpoint, ship it, `nerf-transporter try` it."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+from lightning.pytorch.cli import LightningCLI
+from torch.utils.data import DataLoader
+
+from nerf_transporter import geometry as g
+from nerf_transporter.cli import main as cli_main
+from nerf_transporter.data.datamodule import RavensDataModule
+from nerf_transporter.evaluation.checkpoints import load_checkpoint
+from nerf_transporter.evaluation.pretrained import (
+    PRETRAINED_DIR,
+    export_pretrained,
+    load_manifest,
+    sha256,
+    try_policy,
+)
+from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
+from nerf_transporter.evaluation.testing import results_record, write_json
+from nerf_transporter.methods import Method
+from nerf_transporter.sim import make_env
+
+
+def trained_run(tmp_path: Path) -> Path:
+    """A 2-step gt_state_mlp run on block-insertion: its checkpoint, beside the run's config."""
+    state_dim = make_env("block-insertion").task.state_dim()
+    run = tmp_path / "logs" / "block-insertion" / "gt_state_mlp" / "version_0"
+    cli = LightningCLI(
+        Method,
+        RavensDataModule,
+        subclass_mode_model=True,
+        run=False,
+        save_config_callback=None,
+        args={
+            "model": {"class_path": "GTStateMLP", "init_args": {"state_dim": state_dim}},
+            "data": {"task": "block-insertion", "imagery": "oracle", "data_dir": str(tmp_path)},
+            "trainer": {"max_steps": 2, "logger": False, "enable_progress_bar": False},
+        },
+    )
+    generator = torch.Generator().manual_seed(0)
+    poses = torch.randn(4, 2, 7, generator=generator)
+    poses[..., 3:] = torch.nn.functional.normalize(poses[..., 3:], dim=-1)
+    samples = [
+        {"state": torch.randn(state_dim, generator=generator), "pick": p[0], "place": p[1]}
+        for p in poses
+    ]
+    cli.trainer.fit(cli.model, train_dataloaders=DataLoader(samples, batch_size=2))
+    cli.trainer.datamodule = cli.datamodule  # its hyper-parameters go into the checkpoint
+    checkpoint = run / "checkpoints" / "step2.ckpt"
+    cli.trainer.save_checkpoint(checkpoint)
+    config = {
+        "trainer": {
+            "max_steps": 2,
+            "callbacks": [
+                {
+                    "class_path": "nerf_transporter.evaluation.callback.SuccessRateCallback",
+                    "init_args": {"episodes": 3},
+                }
+            ],
+        }
+    }
+    (run / "config.yaml").write_text(yaml.safe_dump(config))
+    return checkpoint
+
+
+def results_of(checkpoint: Path, seeds: list[int]) -> Path:
+    """The results file `lightning test` writes for `checkpoint` on `seeds`."""
+    model, datamodule = load_checkpoint(checkpoint, torch.device("cpu"))
+    spec = EvaluationSpec.from_datamodule(datamodule, split="test", cache_dir=None)
+    with Evaluator(spec) as evaluator:
+        results = evaluator.run(model, seeds)
+    record = results_record(
+        [result.to_json() for result in results],
+        method=model,
+        spec=spec,
+        split="test",
+        checkpoint=str(checkpoint),
+        global_step=2,
+        wall_s=1.0,
+    )
+    return write_json(checkpoint.parent / f"results-{checkpoint.stem}.json", record)
+
+
+def test_export_keeps_weights_and_provenance_and_try_runs_it(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    checkpoint = trained_run(tmp_path)
+    results = results_of(checkpoint, [1])
+    folder = tmp_path / "pretrained"
+    entry = export_pretrained(checkpoint, results, folder, config="tiny.yaml", commit="abc1234")
+
+    shipped = folder / "block-insertion-gt_state_mlp.ckpt"
+    state = torch.load(shipped, map_location="cpu", weights_only=True)
+    assert "optimizer_states" not in state and "loops" not in state
+    original = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    for key, value in original["state_dict"].items():
+        assert torch.equal(state["state_dict"][key], value)
+    assert shipped.stat().st_size < checkpoint.stat().st_size
+    assert state["provenance"]["commit"] == "abc1234"
+    assert state["provenance"]["trained_steps"] == 2
+    assert state["provenance"]["validation"]["episodes"] == 3
+    assert state["provenance"]["test"]["seeds"] == [1]
+    assert load_manifest(folder) == [entry]
+    assert entry["sha256"] == sha256(shipped)
+
+    record = try_policy(
+        "block-insertion", "gt_state_mlp", 1, tmp_path / "videos", folder=folder, cache_dir=None
+    )
+    # the shipped policy acts exactly as the checkpoint it came from
+    expected = json.loads(results.read_text())["episode_results"][0]
+    assert record["episode_results"][0]["success"] == expected["success"]
+    assert record["episode_results"][0]["action"] == expected["action"]
+    assert sorted(p.name for p in (tmp_path / "videos").glob("*.mp4")) == [
+        "block-insertion-normal-seed1-gt_state_mlp.mp4"
+    ]
+
+
+def test_export_refuses_the_results_of_another_checkpoint(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    checkpoint = trained_run(tmp_path)
+    results = results_of(checkpoint, [1])
+    other = checkpoint.with_name("step9.ckpt")
+    other.write_bytes(checkpoint.read_bytes())
+    with pytest.raises(ValueError, match="not .*step9.ckpt"):
+        export_pretrained(other, results, tmp_path / "out", config="c", commit="c")
+    assert not (tmp_path / "out").exists()
+
+
+def test_try_names_what_is_shipped_for_an_unknown_policy(capsys):
+    assert cli_main(["try", "--task", "block-insertion", "--method", "nope"]) == 2
+    error = capsys.readouterr().err
+    assert "no pretrained nope policy for block-insertion" in error
+    assert "block-insertion/mira" in error
+
+
+def synthetic_observation(input_kind: str, pixel_size: float) -> dict:
+    """Random images of the policy's size (or a random state): enough to act on."""
+    rng = np.random.default_rng(0)
+    shape = g.image_shape(pixel_size)
+    if input_kind == "heightmap":
+        return {
+            "heightmap": {
+                "colour": rng.integers(0, 256, (*shape, 3), dtype=np.uint8),
+                "height": rng.uniform(0, 0.05, shape).astype(np.float32),
+            }
+        }
+    views = g.view_grid("normal")
+    return {
+        "imagery": {
+            "colour": rng.integers(0, 256, (len(views), *shape, 3), dtype=np.uint8),
+            "height": rng.uniform(0, 0.05, (len(views), *shape)).astype(np.float16),
+            "views": views,
+        }
+    }
+
+
+SHIPPED = load_manifest(PRETRAINED_DIR)
+
+
+def test_policies_are_shipped_for_every_task():
+    shipped = {(entry["task"], entry["method"]) for entry in SHIPPED}
+    assert ("block-insertion", "mira") in shipped
+    assert ("block-insertion", "transporter_se2") in shipped
+
+
+@pytest.mark.parametrize("entry", SHIPPED, ids=lambda e: f"{e['task']}-{e['method']}")
+def test_a_shipped_policy_loads_weights_only_and_acts(entry):
+    path = PRETRAINED_DIR / entry["file"]
+    assert sha256(path) == entry["sha256"]
+    assert path.stat().st_size < 5e6
+    state = torch.load(path, map_location="cpu", weights_only=True)
+    assert state["provenance"]["test"]["episodes"] >= 10
+    model, datamodule = load_checkpoint(path, torch.device("cpu"))
+    assert (model.name, datamodule.task) == (entry["method"], entry["task"])
+    action = model.act(synthetic_observation(model.input_kind, model.pixel_size))
+    # on the table: inside the workspace, give or take a tilted view's margin
+    low, high = g.BOUNDS[:2, 0] - 0.1, g.BOUNDS[:2, 1] + 0.1
+    for position, _ in (action["pick"], action["place"]):
+        assert np.all(low <= position[:2]) and np.all(position[:2] <= high)
