@@ -80,11 +80,15 @@ def evaluate_checkpoints(
     progress: bool = True,
     workers: int | None = None,
     video_dir: Path | None = None,
+    only: list[Path] | None = None,
 ) -> list[dict]:
-    """Evaluate every checkpoint of a run on the first `episodes` seeds of `split`, in `workers`
-    worker processes (default: one per available core; 1: in this process); with `video_dir`,
-    every episode is recorded under `<video_dir>/<checkpoint>/`."""
+    """Evaluate every checkpoint of a run (or the `only` ones) on the first `episodes` seeds of
+    `split`, in `workers` worker processes (default: one per available core; 1: in this process);
+    with `video_dir`, every episode is recorded under `<video_dir>/<checkpoint>/`."""
     checkpoints = checkpoint_steps(run_dir)
+    if only is not None:
+        wanted = {path.resolve() for path in only}
+        checkpoints = [(step, path) for step, path in checkpoints if path.resolve() in wanted]
     if not checkpoints:
         raise FileNotFoundError(f"no readable .ckpt files under {run_dir}")
     device = device or torch.device("cuda" if torch.cuda.is_available() else "cpu")
