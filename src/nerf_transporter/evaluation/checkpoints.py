@@ -22,14 +22,12 @@ from pathlib import Path
 
 import torch
 
+from nerf_transporter.atomic import write_new_json
 from nerf_transporter.console import HelpFormatter
+from nerf_transporter.data.observation import IMAGERY_KINDS
 from nerf_transporter.evaluation.report import cell
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
-from nerf_transporter.evaluation.testing import (
-    checkpoint_step,
-    results_record,
-    write_new_json,
-)
+from nerf_transporter.evaluation.testing import checkpoint_step, results_record
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.splits import split_seed
 
@@ -161,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
         "--split", choices=("validation", "test"), default="validation", help="seed range"
     )
     parser.add_argument("--episodes", type=int, default=10, help="episodes per checkpoint")
-    parser.add_argument("--imagery", choices=("nerf", "oracle"), help="default: as in training")
+    parser.add_argument("--imagery", choices=IMAGERY_KINDS, help="default: as in training")
     parser.add_argument("--setting", help="default: the training setting")
     parser.add_argument("--cache-dir", default=DEFAULT_CACHE_DIR, help="imagery cache")
     parser.add_argument("--device", default=None, help="torch device (default: cuda if present)")
