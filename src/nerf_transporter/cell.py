@@ -37,6 +37,7 @@ import torch
 import yaml
 
 from nerf_transporter.cli import NoRunToResumeError, build_cli, claim_version, latest_checkpoint
+from nerf_transporter.atomic import write_json
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.device_info import describe_device
 from nerf_transporter.evaluation.checkpoints import (
@@ -45,11 +46,7 @@ from nerf_transporter.evaluation.checkpoints import (
     evaluate_checkpoints,
 )
 from nerf_transporter.evaluation.report import TASKS, cell, row_key
-from nerf_transporter.evaluation.testing import (
-    checkpoint_step,
-    erred_episodes_text,
-    write_json,
-)
+from nerf_transporter.evaluation.testing import checkpoint_step, erred_episodes_text
 from nerf_transporter.methods import METHODS
 
 CALLBACK = "SuccessRateCallback"
