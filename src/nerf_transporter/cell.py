@@ -36,8 +36,8 @@ from typing import Any
 import torch
 import yaml
 
-from nerf_transporter.cli import NoRunToResumeError, build_cli, claim_version, latest_checkpoint
 from nerf_transporter.atomic import write_json
+from nerf_transporter.cli import NoRunToResumeError, build_cli, claim_version, latest_checkpoint
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.device_info import describe_device
 from nerf_transporter.evaluation.checkpoints import (
