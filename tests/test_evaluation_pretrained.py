@@ -11,6 +11,7 @@ from lightning.pytorch.cli import LightningCLI
 from torch.utils.data import DataLoader
 
 from nerf_transporter import geometry as g
+from nerf_transporter.atomic import write_json
 from nerf_transporter.cli import main as cli_main
 from nerf_transporter.data.datamodule import RavensDataModule
 from nerf_transporter.evaluation.checkpoints import load_checkpoint
@@ -22,7 +23,7 @@ from nerf_transporter.evaluation.pretrained import (
     try_policy,
 )
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
-from nerf_transporter.evaluation.testing import results_record, write_json
+from nerf_transporter.evaluation.testing import results_record
 from nerf_transporter.methods import Method
 from nerf_transporter.sim import make_env
 

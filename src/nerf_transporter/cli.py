@@ -36,6 +36,10 @@ TOOLS: dict[str, tuple[str, str]] = {
         "nerf_transporter.evaluation.pretrained:export_main",
         "reduce a trained checkpoint to a shipped pretrained policy",
     ),
+    "run-cell": (
+        "nerf_transporter.cell:main",
+        "one cell of the results table: fit, pick by validation, test, write its JSON",
+    ),
     "evaluate-checkpoints": (
         "nerf_transporter.evaluation.checkpoints:main",
         "closed-loop success of every checkpoint of a run, to pick the one to test",

@@ -14,10 +14,9 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import io
 import json
-import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -25,11 +24,12 @@ from typing import Any
 import torch
 import yaml
 
+from nerf_transporter.atomic import write_file, write_json
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.evaluation.checkpoints import load_checkpoint
 from nerf_transporter.evaluation.report import cell
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
-from nerf_transporter.evaluation.testing import checkpoint_step, results_record, write_json
+from nerf_transporter.evaluation.testing import checkpoint_step, results_record
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.splits import split_seed
 
@@ -135,16 +135,11 @@ def export_pretrained(
     }
     reduced = {key: state[key] for key in KEPT_KEYS if key in state} | {"provenance": provenance}
     name = policy_file_name(record["task"], record["method"])
-    out_folder.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(dir=out_folder, prefix=f".{name}-")
-    os.close(handle)
-    try:
-        torch.save(reduced, temporary)
-        torch.load(temporary, map_location="cpu", weights_only=True)  # ships only plain data
-        os.replace(temporary, out_folder / name)
-    finally:
-        if os.path.exists(temporary):
-            os.unlink(temporary)
+    buffer = io.BytesIO()
+    torch.save(reduced, buffer)
+    buffer.seek(0)
+    torch.load(buffer, map_location="cpu", weights_only=True)  # ships only plain data
+    write_file(out_folder / name, lambda file: file.write(buffer.getvalue()))
     entry = {"file": name, "bytes": (out_folder / name).stat().st_size}
     entry |= {"sha256": sha256(out_folder / name)} | provenance
     entries = [
