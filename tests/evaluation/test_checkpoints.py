@@ -6,30 +6,9 @@ from pathlib import Path
 
 import pytest
 import torch
-from lightning.pytorch.cli import LightningCLI
-from torch.utils.data import DataLoader
 
 from nerf_transporter.cli import main as cli_main
-from nerf_transporter.data.datamodule import RavensDataModule
-from nerf_transporter.methods import Method
-from nerf_transporter.sim import make_env
-
-
-class StateBatches(torch.utils.data.Dataset):
-    """Random (state, pick, place) samples with unit quaternions: enough to take optimiser steps."""
-
-    def __init__(self, state_dim):
-        generator = torch.Generator().manual_seed(0)
-        self.state = torch.randn(4, state_dim, generator=generator)
-        self.poses = torch.randn(4, 2, 7, generator=generator)
-        self.poses[..., 3:] = torch.nn.functional.normalize(self.poses[..., 3:], dim=-1)
-
-    def __len__(self):
-        return 4
-
-    def __getitem__(self, index):
-        pick, place = self.poses[index]
-        return {"state": self.state[index], "pick": pick, "place": place}
+from tests.helpers.state_run import trained_state_mlp
 
 
 class Exploit:
@@ -44,23 +23,9 @@ def test_every_checkpoint_of_a_run_is_evaluated_and_the_best_named(
 ):
     monkeypatch.chdir(tmp_path)
     run = tmp_path / "logs" / "block-insertion" / "gt_state_mlp" / "version_0"
-    state_dim = make_env("block-insertion").task.state_dim()
-    cli = LightningCLI(
-        Method,
-        RavensDataModule,
-        subclass_mode_model=True,
-        run=False,
-        save_config_callback=None,
-        args={
-            "model": {"class_path": "GTStateMLP", "init_args": {"state_dim": state_dim}},
-            "data": {"task": "block-insertion", "imagery": "oracle", "data_dir": str(tmp_path)},
-            "trainer": {"max_steps": 2, "logger": False, "enable_progress_bar": False},
-        },
-    )
-    cli.trainer.fit(cli.model, train_dataloaders=DataLoader(StateBatches(state_dim), batch_size=2))
-    cli.trainer.datamodule = cli.datamodule  # its hyper-parameters go into the checkpoints
-    cli.trainer.save_checkpoint(run / "checkpoints" / "step2.ckpt")
-    cli.trainer.save_checkpoint(run / "checkpoints" / "last.ckpt")  # the same step again
+    trainer = trained_state_mlp(tmp_path)
+    trainer.save_checkpoint(run / "checkpoints" / "step2.ckpt")
+    trainer.save_checkpoint(run / "checkpoints" / "last.ckpt")  # the same step again
     later = torch.load(run / "checkpoints" / "step2.ckpt", weights_only=True)
     later["global_step"] = 4
     torch.save(later, run / "checkpoints" / "step4.ckpt")

@@ -7,13 +7,10 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from lightning.pytorch.cli import LightningCLI
-from torch.utils.data import DataLoader
 
 from nerf_transporter import geometry as g
 from nerf_transporter.atomic import write_json
 from nerf_transporter.cli import main as cli_main
-from nerf_transporter.data.datamodule import RavensDataModule
 from nerf_transporter.evaluation.checkpoints import load_checkpoint
 from nerf_transporter.evaluation.pretrained import (
     PRETRAINED_DIR,
@@ -24,37 +21,14 @@ from nerf_transporter.evaluation.pretrained import (
 )
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
 from nerf_transporter.evaluation.testing import results_record
-from nerf_transporter.methods import Method
-from nerf_transporter.sim import make_env
+from tests.helpers.state_run import trained_state_mlp
 
 
 def trained_run(tmp_path: Path) -> Path:
     """A 2-step gt_state_mlp run on block-insertion: its checkpoint, beside the run's config."""
-    state_dim = make_env("block-insertion").task.state_dim()
     run = tmp_path / "logs" / "block-insertion" / "gt_state_mlp" / "version_0"
-    cli = LightningCLI(
-        Method,
-        RavensDataModule,
-        subclass_mode_model=True,
-        run=False,
-        save_config_callback=None,
-        args={
-            "model": {"class_path": "GTStateMLP", "init_args": {"state_dim": state_dim}},
-            "data": {"task": "block-insertion", "imagery": "oracle", "data_dir": str(tmp_path)},
-            "trainer": {"max_steps": 2, "logger": False, "enable_progress_bar": False},
-        },
-    )
-    generator = torch.Generator().manual_seed(0)
-    poses = torch.randn(4, 2, 7, generator=generator)
-    poses[..., 3:] = torch.nn.functional.normalize(poses[..., 3:], dim=-1)
-    samples = [
-        {"state": torch.randn(state_dim, generator=generator), "pick": p[0], "place": p[1]}
-        for p in poses
-    ]
-    cli.trainer.fit(cli.model, train_dataloaders=DataLoader(samples, batch_size=2))
-    cli.trainer.datamodule = cli.datamodule  # its hyper-parameters go into the checkpoint
     checkpoint = run / "checkpoints" / "step2.ckpt"
-    cli.trainer.save_checkpoint(checkpoint)
+    trained_state_mlp(tmp_path).save_checkpoint(checkpoint)
     config = {
         "trainer": {
             "max_steps": 2,
