@@ -17,6 +17,7 @@ from nerf_transporter.evaluation.pretrained import (
     export_pretrained,
     load_manifest,
     sha256,
+    shipped_table,
     try_policy,
 )
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
@@ -157,3 +158,8 @@ def test_a_shipped_policy_loads_weights_only_and_acts(entry):
     low, high = g.BOUNDS[:2, 0] - 0.1, g.BOUNDS[:2, 1] + 0.1
     for position, _ in (action["pick"], action["place"]):
         assert np.all(low <= position[:2]) and np.all(position[:2] <= high)
+
+
+def test_the_readme_states_the_shipped_policies_as_measured():
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    assert shipped_table(SHIPPED) in readme, "README: paste `nerf-transporter try --list`"

@@ -28,7 +28,12 @@ from nerf_transporter.atomic import write_file, write_json
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.evaluation.checkpoints import load_checkpoint
 from nerf_transporter.evaluation.report import cell
-from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
+from nerf_transporter.evaluation.rollout import (
+    DEFAULT_CACHE_DIR,
+    EpisodeResult,
+    EvaluationSpec,
+    Evaluator,
+)
 from nerf_transporter.evaluation.testing import checkpoint_step, results_record
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.splits import split_seed
@@ -235,10 +240,7 @@ def try_main(argv: list[str] | None = None) -> int:
         print(f"nerf-transporter try: {error}", file=sys.stderr)
         return 2
     for result in record["episode_results"]:
-        print(
-            f"seed {result['seed']}: {result['outcome']}"
-            + (f" ({result['failure']})" if result.get("failure") else "")
-        )
+        print(f"seed {result['seed']}: {EpisodeResult.from_json(result).outcome_text()}")
     print(f"{args.task} {args.method}: {cell(record)} in {record['wall_s']:.0f} s")
     print(f"videos: {args.video}/")
     return 0

@@ -178,6 +178,11 @@ class EpisodeResult:
         record.pop("frames")
         return {"outcome": self.outcome} | record
 
+    @classmethod
+    def from_json(cls, record: dict) -> EpisodeResult:
+        """The result back from its `to_json` record (without frames)."""
+        return cls(**{key: value for key, value in record.items() if key != "outcome"})
+
     def outcome_text(self) -> str:
         """ "success", or why not (`failure_text`): the caption of strips and videos."""
         return "success" if self.success else str(self.failure_text())
