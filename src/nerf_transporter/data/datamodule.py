@@ -38,6 +38,7 @@ from nerf_transporter.data.labels import (
     to_view_frames,
 )
 from nerf_transporter.data.preprocess import network_input
+from nerf_transporter.data.seeds import seed_loader
 from nerf_transporter.sim import cameras
 
 INPUT_KINDS = ("imagery", "heightmap", "state")  # what a method reads (its `input_kind`)
@@ -413,6 +414,4 @@ class RavensDataModule(pl.LightningDataModule):
 
     def test_dataloader(self) -> DataLoader:
         """Seeds of the closed-loop test episodes (`lightning test`, see evaluation/testing.py)."""
-        from nerf_transporter.evaluation.testing import seed_loader
-
         return seed_loader("test", self.test_episodes)
