@@ -37,11 +37,11 @@ from nerf_transporter.data.labels import (
     labels_from_view_action,
     to_view_frames,
 )
+from nerf_transporter.data.observation import INPUT_KINDS
 from nerf_transporter.data.preprocess import network_input
 from nerf_transporter.data.seeds import seed_loader
 from nerf_transporter.sim import cameras
 
-INPUT_KINDS = ("imagery", "heightmap", "state")  # what a method reads (its `input_kind`)
 FILES_PER_KIND = {"imagery": ["imagery"], "heightmap": ["rgbd"], "state": []}
 
 
