@@ -336,6 +336,10 @@ def summarise(rows: Sequence[dict]) -> dict:
                     "fixture_tilt_deg": quantiles([r["fixture_tilt_deg"] for r in successes]),
                     "aim_offset_mm": quantiles([r["aim_offset_mm"] for r in successes]),
                     "aim_downhill_mm": quantiles([r["aim_downhill_mm"] for r in successes]),
+                    "aim_yaw_error_deg": quantiles([r["aim_yaw_error_deg"] for r in successes]),
+                    "release_block_tilt_deg": quantiles(
+                        [r["release"]["block_tilt_deg"] for r in with_release]
+                    ),
                     "release_axis_tilt_error_deg": quantiles(
                         [r["release"]["axis_tilt_error_deg"] for r in with_release]
                     ),
@@ -384,6 +388,9 @@ def summarise(rows: Sequence[dict]) -> dict:
                     "fixture_tilt_deg": quantiles([r["fixture_tilt_deg"] for r in failures]),
                     "aim_offset_mm": quantiles([r["aim_offset_mm"] for r in failures]),
                     "aim_downhill_mm": quantiles([r["aim_downhill_mm"] for r in failures]),
+                    "release_normal_offset_mm": quantiles(
+                        [r["release"]["normal_offset_mm"] for r in failures if "release" in r]
+                    ),
                     "final_normal_offset_mm": quantiles(
                         [r["final"]["normal_offset_mm"] for r in failures]
                     ),
