@@ -20,6 +20,9 @@ tolerances (recomputed from the recorded errors; the task itself is unchanged).
 
     OMP_NUM_THREADS=1 PYTHONPATH=src python benchmarks/flat_placement.py \
         [--episodes 100] [--settings normal challenging] [--json]
+    python benchmarks/flat_placement.py --records <saved --json output> [--episodes 50]
+
+docs/six_dof.md reports and reads these figures.
 """
 
 from __future__ import annotations
@@ -247,6 +250,8 @@ def measure(
 
 @dataclass(frozen=True)
 class Rate:
+    """`successes` out of `n` executions, with its 95% Wilson interval."""
+
     successes: int
     n: int
 
