@@ -37,11 +37,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from device_info import cpu_model
 
 from nerf_transporter import geometry as g
 from nerf_transporter.data.heightmap import heightmap_from_rgbd
 from nerf_transporter.data.labels import Action, action_from_labels, heightmap_labels
+from nerf_transporter.device_info import cpu_model
 from nerf_transporter.evaluation.metrics import wilson_interval
 from nerf_transporter.sim import TASKS, make_env
 from nerf_transporter.sim.env import RavensEnv
