@@ -38,7 +38,7 @@ from nerf_transporter.data.labels import (
     to_view_frames,
 )
 from nerf_transporter.data.preprocess import network_input
-from nerf_transporter.sim import cameras
+from nerf_transporter.sim import TASKS, cameras
 
 INPUT_KINDS = ("imagery", "heightmap", "state")  # what a method reads (its `input_kind`)
 FILES_PER_KIND = {"imagery": ["imagery"], "heightmap": ["rgbd"], "state": []}
@@ -293,6 +293,11 @@ class RavensDataModule(pl.LightningDataModule):
         self.val_dataset: DemoDataset | None = None
 
     # -- configuration -------------------------------------------------------------------------
+
+    @property
+    def state_dim(self) -> int:
+        """Length of the task's state vector (`gt_state_mlp`'s input), known without loading data."""
+        return TASKS[self.task].state_dim()
 
     def resolve_input_kind(self) -> str:
         trainer = getattr(self, "trainer", None)
