@@ -22,18 +22,14 @@ import numpy as np
 
 from nerf_transporter import geometry as g
 from nerf_transporter.data import episode as ep
-from nerf_transporter.data.generate import (
-    GenerationConfig,
-    action_from_meta,
-    generate_dataset,
-    pose_error_text,
-)
+from nerf_transporter.data.generate import GenerationConfig, action_from_meta, generate_dataset
 from nerf_transporter.data.labels import (
     action_from_labels,
     heightmap_labels,
     mira_labels,
 )
 from nerf_transporter.sim import TASKS, make_env
+from nerf_transporter.sim.tasks import pose_error_text
 
 
 def rebuilt_actions(

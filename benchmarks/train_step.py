@@ -20,9 +20,9 @@ import time
 
 import numpy as np
 import torch
-from device_info import describe_device, device_line
 
 from nerf_transporter import geometry as g
+from nerf_transporter.device_info import describe_device, device_line
 from nerf_transporter.methods import METHODS, Method
 
 STATE_DIM = 28

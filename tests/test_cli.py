@@ -13,11 +13,11 @@ import lightning.pytorch as pl
 import numpy as np
 import pytest
 import torch
-from test_methods import SIZE, STATE_DIM, synthetic_batch, synthetic_observation
 from torch.utils.data import DataLoader
 
 from nerf_transporter.cli import build_cli, claim_version, lightning_main, main
 from nerf_transporter.methods import METHODS, Mira, TransporterSE2
+from tests.helpers.synthetic import SIZE, STATE_DIM, synthetic_batch, synthetic_observation
 
 REPO = Path(__file__).resolve().parents[1]
 TASK_CONFIGS = sorted((REPO / "configs").glob("*.yaml")) + sorted(
@@ -65,7 +65,7 @@ model:
   class_path: Mira
   init_args: {{{model_args}, log_images_every_n_steps: 1}}
 data:
-  class_path: test_cli.SyntheticDataModule
+  class_path: tests.test_cli.SyntheticDataModule
   init_args: {{{data_args}}}
 """
     )
@@ -181,7 +181,7 @@ def test_two_step_fit_logs_and_checkpoints(name, tmp_path):
 def test_ddp_two_cpu_processes(tmp_path):
     """Lightning's own DDP on two CPU processes (~15 s: two interpreters start)."""
     config = tiny_config(tmp_path / "tiny.yaml", batch_size=1)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "tests"), str(REPO / "src")])}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), str(REPO / "src")])}
     result = subprocess.run(
         [sys.executable, "-m", "nerf_transporter.cli", "fit", "--config", str(config)]
         + ["--trainer.strategy", "ddp", "--trainer.devices", "2", "--trainer.accelerator", "cpu"],

@@ -28,6 +28,10 @@ TOOLS: dict[str, tuple[str, str]] = {
         "episodes, seeds, imagery quality (--verify)",
     ),
     "report": ("nerf_transporter.evaluation.report:main", "results table (markdown or --csv)"),
+    "run-cell": (
+        "nerf_transporter.cell:main",
+        "one cell of the results table: fit, pick by validation, test, write its JSON",
+    ),
     "evaluate-checkpoints": (
         "nerf_transporter.evaluation.checkpoints:main",
         "closed-loop success of every checkpoint of a run, to pick the one to test",

@@ -95,3 +95,87 @@ def heatmap_picture(
     gap = np.full((height, 2, 3), 255, dtype=np.uint8)
     body = np.concatenate([picture, gap, _colormap(gradient)], axis=1)
     return captioned(body, [f"{title} max {top:.2g}".strip()])
+
+
+def _centred_text(image: np.ndarray, text: str, centre_x: int, baseline: int, scale: float) -> None:
+    width = cv2.getTextSize(text, FONT, scale, 1)[0][0]
+    cv2.putText(
+        image, text, (centre_x - width // 2, baseline), FONT, scale, (40, 40, 40), 1, cv2.LINE_AA
+    )
+
+
+def bar_chart(
+    groups: Sequence[str],
+    series: Sequence[str],
+    values: np.ndarray,
+    low: np.ndarray,
+    high: np.ndarray,
+    markers: np.ndarray,
+    *,
+    title: str = "",
+    marker_label: str = "",
+    size: tuple[int, int] = (560, 1280),
+) -> np.ndarray:
+    """Grouped bars of fractions in [0, 1] on a white canvas (RGB uint8 [H, W, 3]).
+
+    `values`, `low`, `high` and `markers` are [len(series), len(groups)]: bar heights, the ends of
+    each bar's whisker, and a black diamond per bar slot (e.g. a reference value); NaN leaves a
+    bar (its slot shows "-") or a marker out. Series are told apart by colour, named in a legend.
+    """
+    values, low, high, markers = (
+        np.asarray(a, dtype=np.float64) for a in (values, low, high, markers)
+    )
+    shape = (len(series), len(groups))
+    if any(array.shape != shape for array in (values, low, high, markers)):
+        raise ValueError(f"values, low, high and markers must all be [series, groups] = {shape}")
+    height, width = size
+    image = np.full((height, width, 3), 255, dtype=np.uint8)
+    left, right, top, bottom = 60, width - 20, 80, height - 50
+    scale = 0.45
+
+    def y_of(fraction: float) -> int:
+        return int(round(bottom - fraction * (bottom - top)))
+
+    for tick in np.linspace(0, 1, 6):
+        y = y_of(tick)
+        cv2.line(image, (left, y), (right, y), (225, 225, 225), 1)
+        label = f"{100 * tick:.0f}%"
+        label_width = cv2.getTextSize(label, FONT, scale, 1)[0][0]
+        cv2.putText(
+            image, label, (left - 8 - label_width, y + 5), FONT, scale, (40, 40, 40), 1, cv2.LINE_AA
+        )
+    cv2.line(image, (left, bottom), (right, bottom), (40, 40, 40), 1)
+    colours = _colormap(np.linspace(0.05, 0.9, len(series))[None])[0]
+    group_width = (right - left) / len(groups)
+    bar_width = group_width * 0.8 / len(series)
+    for g, group in enumerate(groups):
+        start = left + g * group_width + 0.1 * group_width
+        _centred_text(image, group, int(left + (g + 0.5) * group_width), bottom + 22, scale)
+        for s in range(len(series)):
+            x0, x1 = int(start + s * bar_width + 1), int(start + (s + 1) * bar_width - 1)
+            centre = (x0 + x1) // 2
+            if np.isnan(values[s, g]):
+                _centred_text(image, "-", centre, bottom - 4, scale)
+            else:
+                colour = tuple(int(c) for c in colours[s])
+                cv2.rectangle(image, (x0, y_of(values[s, g])), (x1, bottom), colour, cv2.FILLED)
+                y_low, y_high = y_of(low[s, g]), y_of(high[s, g])
+                cv2.line(image, (centre, y_low), (centre, y_high), (20, 20, 20), 1, cv2.LINE_AA)
+                for y in (y_low, y_high):
+                    cv2.line(image, (centre - 4, y), (centre + 4, y), (20, 20, 20), 1, cv2.LINE_AA)
+            if not np.isnan(markers[s, g]):
+                cv2.drawMarker(
+                    image, (centre, y_of(markers[s, g])), (0, 0, 0), cv2.MARKER_DIAMOND, 10, 2
+                )
+    if title:
+        cv2.putText(image, title, (left, 24), FONT, 0.6, (20, 20, 20), 1, cv2.LINE_AA)
+    x = left
+    for s, name in enumerate(series):
+        colour = tuple(int(c) for c in colours[s])
+        cv2.rectangle(image, (x, 44), (x + 14, 58), colour, cv2.FILLED)
+        cv2.putText(image, name, (x + 20, 56), FONT, scale, (40, 40, 40), 1, cv2.LINE_AA)
+        x += 20 + cv2.getTextSize(name, FONT, scale, 1)[0][0] + 24
+    if marker_label:
+        cv2.drawMarker(image, (x + 7, 51), (0, 0, 0), cv2.MARKER_DIAMOND, 10, 2)
+        cv2.putText(image, marker_label, (x + 20, 56), FONT, scale, (40, 40, 40), 1, cv2.LINE_AA)
+    return image

@@ -37,10 +37,10 @@ from nerf_transporter.data.labels import (
     labels_from_view_action,
     to_view_frames,
 )
+from nerf_transporter.data.observation import INPUT_KINDS
 from nerf_transporter.data.preprocess import network_input
 from nerf_transporter.sim import TASKS, cameras
 
-INPUT_KINDS = ("imagery", "heightmap", "state")  # what a method reads (its `input_kind`)
 FILES_PER_KIND = {"imagery": ["imagery"], "heightmap": ["rgbd"], "state": []}
 
 

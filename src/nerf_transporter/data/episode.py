@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from nerf_transporter.atomic import write_json
 from nerf_transporter.sim.fingerprint import world_changes
 
 # 2: meta.json holds its own checksum (meta_sha256) and the generation config ("generation")
@@ -101,13 +102,6 @@ def meta_checksum(meta: Mapping[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def _write_json(path: Path, payload: Mapping[str, Any]) -> None:
-    """Write JSON atomically (temporary file in the same directory, then rename)."""
-    temp = path.with_name(f"{TEMP_PREFIX}{path.name}-{socket.gethostname()}-{os.getpid()}")
-    temp.write_text(json.dumps(payload, indent=2, sort_keys=True) + "\n")
-    os.replace(temp, path)
-
-
 def _temp_dir_name(final_name: str) -> str:
     return f"{TEMP_PREFIX}{final_name}-{socket.gethostname()}-{os.getpid()}"
 
@@ -143,7 +137,7 @@ def write_episode(
         full_meta = {**meta, "format": FORMAT_VERSION, "index": index, "seed": seed, "files": files}
         full_meta = json.loads(json.dumps(full_meta))  # the checksum is of what is read back
         full_meta[META_CHECKSUM] = meta_checksum(full_meta)
-        _write_json(temp / META_FILE, full_meta)
+        write_json(temp / META_FILE, full_meta, sort_keys=True)
         if final.exists():
             shutil.rmtree(temp)
             return final
@@ -315,9 +309,8 @@ def verify_episode(path: str | os.PathLike) -> None:
 
 
 def record_failure(dataset_dir: str | os.PathLike, seed: int, reason: str) -> None:
-    failed = Path(dataset_dir) / FAILED_DIR
-    failed.mkdir(parents=True, exist_ok=True)
-    _write_json(failed / f"{seed}.json", {"seed": seed, "reason": reason})
+    path = Path(dataset_dir) / FAILED_DIR / f"{seed}.json"
+    write_json(path, {"seed": seed, "reason": reason}, sort_keys=True)
 
 
 def failed_seeds(dataset_dir: str | os.PathLike) -> dict[int, str]:
@@ -435,8 +428,7 @@ def ensure_dataset_config(
 ) -> None:
     """Check the dataset against `config` (see check_dataset_config); write dataset.json if none."""
     if not check_dataset_config(dataset_dir, config, command):
-        Path(dataset_dir).mkdir(parents=True, exist_ok=True)
-        _write_json(Path(dataset_dir) / DATASET_FILE, json.loads(json.dumps(config)))
+        write_json(Path(dataset_dir) / DATASET_FILE, config, sort_keys=True)
 
 
 def remove_dataset(dataset_dir: str | os.PathLike) -> None:

@@ -28,7 +28,7 @@ import os
 import sys
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -39,65 +39,47 @@ from nerf_transporter import geometry as g
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.data import episode as ep
 from nerf_transporter.data.labels import heightmap_labels, mira_labels
+from nerf_transporter.data.observation import (
+    IMAGERY_KINDS,
+    SceneConfig,
+    SceneSpec,
+    oracle_views,
+    rounded,
+    scene_imagery,
+)
 from nerf_transporter.parallel import exit_if_orphaned, process_pool
 from nerf_transporter.sim import SETTINGS, TASKS, cameras, fingerprint
+from nerf_transporter.sim.tasks import pose_error_text
 from nerf_transporter.splits import SPLITS, split_seed
 
-IMAGERY_KINDS = ("nerf", "oracle")
-# ImageryConfig fields that change how fast imagery is built, not what it is
-IMAGERY_RUNTIME_FIELDS = ("device", "progress", "threads", "render_batch")
 
+@dataclass(frozen=True, init=False)
+class GenerationConfig(SceneConfig):
+    """Everything an episode depends on besides its seed: the scene and the split (stored as the
+    dataset's dataset.json). The scene's fields read through (`config.task`, `config.grid`)."""
 
-@dataclass(frozen=True)
-class GenerationConfig:
-    """Everything an episode depends on besides its seed (stored as the dataset's dataset.json)."""
-
-    task: str
-    setting: str = "normal"
+    scene: SceneSpec
     split: str = "train"
-    imagery: str = "nerf"
-    pixel_size: float = g.PIXEL_SIZE
-    nerf_views: int = 30
-    nerf_image_size: tuple[int, int] = cameras.IMAGE_SIZE
-    imagery_options: dict[str, Any] = field(default_factory=dict)  # ImageryConfig fields
 
-    def __post_init__(self) -> None:
-        if self.task not in TASKS:
-            raise ValueError(f"unknown task {self.task!r}; valid tasks: {', '.join(sorted(TASKS))}")
-        if self.setting not in SETTINGS:
-            raise ValueError(
-                f"unknown setting {self.setting!r}; valid settings: {', '.join(SETTINGS)}"
-            )
-        if not (math.isfinite(self.pixel_size) and self.pixel_size > 0) or (
-            min(g.image_shape(self.pixel_size)) < 1
-        ):
-            raise ValueError(
-                f"--pixel-size must be > 0 and smaller than the workspace (metres per pixel), "
-                f"got {self.pixel_size!r}"
-            )
-        if self.nerf_views < 0:
-            raise ValueError(f"--nerf-views must be >= 0, got {self.nerf_views}")
-        if self.imagery not in IMAGERY_KINDS:
-            raise ValueError(
-                f"unknown imagery {self.imagery!r}; valid choices: {', '.join(IMAGERY_KINDS)}"
-            )
-        if self.split not in SPLITS:
-            raise ValueError(f"unknown split {self.split!r}; valid splits: {', '.join(SPLITS)}")
-        if self.imagery == "nerf" and self.nerf_views < 1:
-            raise ValueError("--imagery nerf needs --nerf-views >= 1")
-        object.__setattr__(self, "nerf_image_size", tuple(int(v) for v in self.nerf_image_size))
-
-    @property
-    def grid(self) -> np.ndarray:
-        return g.view_grid(self.setting)
-
-    def imagery_config(self):
-        """The imagery package's ImageryConfig for `--imagery nerf` (pixel size of this dataset)."""
-        from nerf_transporter.imagery import ImageryConfig
-
-        return ImageryConfig(
-            **{**self.imagery_options, "pixel_size": self.pixel_size, "progress": False}
-        )
+    def __init__(
+        self,
+        task: str | None = None,
+        setting: str = "normal",
+        split: str = "train",
+        *args: Any,
+        scene: SceneSpec | None = None,
+        **fields: Any,
+    ) -> None:
+        """`GenerationConfig(scene=..., split=...)`, or with the fields of the scene: `(task,
+        setting, split, imagery, pixel_size, nerf_views, nerf_image_size, imagery_options)`."""
+        if scene is None:
+            scene = SceneSpec(task, setting, *args, **fields)
+        elif task is not None or args or fields:
+            raise TypeError("GenerationConfig takes a scene or the fields of one, not both")
+        if split not in SPLITS:
+            raise ValueError(f"unknown split {split!r}; valid splits: {', '.join(SPLITS)}")
+        object.__setattr__(self, "scene", scene)
+        object.__setattr__(self, "split", split)
 
     def dataset_name(self) -> str:
         """<task>-<setting>-<split>, with -oracle and -px<size> for non-default imagery or pixels."""
@@ -129,10 +111,7 @@ class GenerationConfig:
             "imagery": {"kind": self.imagery},
         }
         if self.imagery == "nerf":
-            config = dataclasses.asdict(self.imagery_config())
-            for name in IMAGERY_RUNTIME_FIELDS:
-                config.pop(name, None)
-            description["imagery"]["config"] = config
+            description["imagery"]["config"] = self.scene.imagery_description()
         return description
 
     def command(
@@ -221,21 +200,6 @@ def imagery_quality(
     }
 
 
-def pose_error_text(info: dict[str, Any]) -> str:
-    errors = [
-        f"{label} {info[key] * scale:.1f} {unit}"
-        for key, label, scale, unit in (
-            ("position_error", "position", 100.0, "cm"),
-            ("tilt_error", "tilt", 180.0 / math.pi, "deg"),
-            ("yaw_error", "yaw", 180.0 / math.pi, "deg"),
-        )
-        if isinstance(info.get(key), float | int)
-    ]
-    return "the object did not end at the target pose" + (
-        f" ({', '.join(errors)})" if errors else ""
-    )
-
-
 def generate_episode(
     config: GenerationConfig, dataset_dir: str | os.PathLike, index: int
 ) -> Outcome:
@@ -257,7 +221,7 @@ def generate_episode(
     pick_view = g.top_down_view_index(grid)
     truth_ids = range(len(grid)) if config.imagery == "oracle" else sorted({pick_view, place_view})
     render_start = time.perf_counter()
-    truth = {k: env.render_orthographic(*grid[k], pixel_size=config.pixel_size) for k in truth_ids}
+    truth = oracle_views(env, grid[list(truth_ids)], config.pixel_size)
     truth_s = time.perf_counter() - render_start
 
     rollout_start = time.perf_counter()
@@ -271,39 +235,26 @@ def generate_episode(
     imagery_start = time.perf_counter()
     quality = None
     if config.imagery == "oracle":
-        colour = np.stack([truth[k][0] for k in truth_ids])
-        height = np.stack([truth[k][1] for k in truth_ids])
+        colour, height = truth  # all views, seen before the robot moved
     else:
-        from nerf_transporter.imagery import fit_scene, render_views
-
-        imagery_config = config.imagery_config()
-        scene = fit_scene(
-            obs["nerf"]["rgb"],
-            obs["nerf"]["intrinsics"],
-            obs["nerf"]["cam_to_world"],
-            imagery_config,
-        )
-        colour, height = render_views(scene, grid, imagery_config)
-        quality = imagery_quality(
-            colour[list(truth_ids)],
-            height[list(truth_ids)],
-            np.stack([truth[k][0] for k in truth_ids]),
-            np.stack([truth[k][1] for k in truth_ids]),
-        )
+        colour, height = scene_imagery(config.scene, env, obs)
+        quality = imagery_quality(colour[list(truth_ids)], height[list(truth_ids)], *truth)
     imagery_s = time.perf_counter() - imagery_start
 
+    colour, height = rounded(colour, height)
     imagery_arrays = {
-        "colour": colour.astype(np.uint8),
-        "height": height.astype(np.float16),
+        "colour": colour,
+        "height": height,
         "views": grid.astype(np.float32),
         "pick_view": np.int64(pick_view),
         "place_view": np.int64(place_view),
     }
     if config.imagery == "nerf":
+        truth_colour, truth_height = rounded(*truth)
         imagery_arrays |= {
             "truth_view_ids": np.array(list(truth_ids), dtype=np.int64),
-            "truth_colour": np.stack([truth[k][0] for k in truth_ids]).astype(np.uint8),
-            "truth_height": np.stack([truth[k][1] for k in truth_ids]).astype(np.float16),
+            "truth_colour": truth_colour,
+            "truth_height": truth_height,
         }
     arrays = {
         "rgbd": {key: np.asarray(value) for key, value in obs["rgbd"].items()},

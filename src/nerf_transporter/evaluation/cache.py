@@ -11,12 +11,13 @@ import hashlib
 import json
 import logging
 import os
-import tempfile
 import zipfile
 import zlib
 from pathlib import Path
 
 import numpy as np
+
+from nerf_transporter.atomic import write_file
 
 IMAGERY_KEYS = ("colour", "height", "views")
 log = logging.getLogger(__name__)
@@ -67,16 +68,8 @@ class ImageryCache:
     def save(
         self, task: str, setting: str, seed: int, key: str, imagery: dict[str, np.ndarray]
     ) -> Path:
-        path = self.path(task, setting, seed, key)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        handle, temporary = tempfile.mkstemp(
-            dir=path.parent, prefix=f".{path.stem}-", suffix=".npz"
+        arrays = {name: imagery[name] for name in IMAGERY_KEYS}
+        return write_file(
+            self.path(task, setting, seed, key),
+            lambda file: np.savez_compressed(file, **arrays),
         )
-        try:
-            with os.fdopen(handle, "wb") as file:
-                np.savez_compressed(file, **{name: imagery[name] for name in IMAGERY_KEYS})
-            os.replace(temporary, path)
-        except BaseException:
-            Path(temporary).unlink(missing_ok=True)
-            raise
-        return path

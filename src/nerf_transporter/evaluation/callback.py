@@ -36,6 +36,7 @@ from torchmetrics.aggregation import SumMetric
 
 from nerf_transporter.drawing import captioned
 from nerf_transporter.evaluation.metrics import SuccessRate, wilson_interval
+from nerf_transporter.evaluation.report import cell
 from nerf_transporter.evaluation.rollout import (
     DEFAULT_CACHE_DIR,
     EpisodeResult,
@@ -175,11 +176,12 @@ class SuccessRateCallback(Callback):
             "eval/errors": float(errors),
         }
         misses = [f"{r.seed}: {r.failure_text()}" for r in results if not r.success]
+        counts = {"successes": successes, "episodes": episodes, "errors": errors}
+        summary = cell(counts | {"ci_low": low, "ci_high": high})
         rank_zero_info(
-            f"step {trainer.global_step}: validation success {successes}/{episodes} "
-            f"({100 * rate:.0f}%, 95% CI {100 * low:.0f}-{100 * high:.0f}%)"
+            f"step {trainer.global_step}: validation success (n, 95% CI) {summary}"
             + (
-                f", {errors} erred episodes not counted: this round is not used to select checkpoints"
+                "; erred episodes are not counted and this round is not used to select checkpoints"
                 if errors
                 else ""
             )

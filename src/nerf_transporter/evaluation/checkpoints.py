@@ -22,14 +22,12 @@ from pathlib import Path
 
 import torch
 
+from nerf_transporter.atomic import write_new_json
 from nerf_transporter.console import HelpFormatter
+from nerf_transporter.data.observation import IMAGERY_KINDS
 from nerf_transporter.evaluation.report import cell
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
-from nerf_transporter.evaluation.testing import (
-    checkpoint_step,
-    results_record,
-    write_new_json,
-)
+from nerf_transporter.evaluation.testing import checkpoint_step, results_record
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.splits import split_seed
 
@@ -80,11 +78,15 @@ def evaluate_checkpoints(
     progress: bool = True,
     workers: int | None = None,
     video_dir: Path | None = None,
+    only: list[Path] | None = None,
 ) -> list[dict]:
-    """Evaluate every checkpoint of a run on the first `episodes` seeds of `split`, in `workers`
-    worker processes (default: one per available core; 1: in this process); with `video_dir`,
-    every episode is recorded under `<video_dir>/<checkpoint>/`."""
+    """Evaluate every checkpoint of a run (or the `only` ones) on the first `episodes` seeds of
+    `split`, in `workers` worker processes (default: one per available core; 1: in this process);
+    with `video_dir`, every episode is recorded under `<video_dir>/<checkpoint>/`."""
     checkpoints = checkpoint_steps(run_dir)
+    if only is not None:
+        wanted = {path.resolve() for path in only}
+        checkpoints = [(step, path) for step, path in checkpoints if path.resolve() in wanted]
     if not checkpoints:
         raise FileNotFoundError(f"no readable .ckpt files under {run_dir}")
     device = device or torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -157,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
         "--split", choices=("validation", "test"), default="validation", help="seed range"
     )
     parser.add_argument("--episodes", type=int, default=10, help="episodes per checkpoint")
-    parser.add_argument("--imagery", choices=("nerf", "oracle"), help="default: as in training")
+    parser.add_argument("--imagery", choices=IMAGERY_KINDS, help="default: as in training")
     parser.add_argument("--setting", help="default: the training setting")
     parser.add_argument("--cache-dir", default=DEFAULT_CACHE_DIR, help="imagery cache")
     parser.add_argument("--device", default=None, help="torch device (default: cuda if present)")

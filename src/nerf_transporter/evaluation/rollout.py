@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import os
 import time
 from collections.abc import Callable, Iterable
@@ -32,23 +31,26 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from nerf_transporter import geometry
-from nerf_transporter.data.datamodule import INPUT_KINDS
-from nerf_transporter.data.generate import IMAGERY_KINDS, IMAGERY_RUNTIME_FIELDS, pose_error_text
-from nerf_transporter.data.heightmap import heightmap_from_rgbd
 from nerf_transporter.data.labels import mira_labels
+from nerf_transporter.data.observation import (
+    INPUT_KINDS,
+    SceneConfig,
+    SceneSpec,
+    imagery_observation,
+    observation,
+)
 from nerf_transporter.evaluation.cache import ImageryCache, config_hash
 from nerf_transporter.evaluation.video import EpisodeVideo, plan_panel
 from nerf_transporter.parallel import available_cores
-from nerf_transporter.sim import cameras
 from nerf_transporter.sim.fingerprint import world_fingerprint
+from nerf_transporter.sim.tasks import POSE_ERROR_KEYS, pose_error_text
 
 if TYPE_CHECKING:
     from nerf_transporter.evaluation.workers import EpisodeWorkers
+    from nerf_transporter.imagery import ImageryConfig
 
 log = logging.getLogger(__name__)
 
-POSE_ERROR_KEYS = ("position_error", "tilt_error", "yaw_error")  # metres, radians, radians
 NOT_ACHIEVED = "task not achieved"
 DEFAULT_CACHE_DIR = "data/imagery-cache"
 
@@ -64,34 +66,40 @@ class Policy(Protocol):
     def train(self, mode: bool = True) -> Any: ...
 
 
-@dataclass
-class EvaluationSpec:
-    """Where and how episodes are evaluated.
+@dataclass(frozen=True, init=False)
+class EvaluationSpec(SceneConfig):
+    """Where and how episodes are evaluated: the scene (`data.observation.SceneSpec`; its fields
+    read through, `spec.task`) and the imagery cache (`cache_dir=None` disables it).
 
-    `imagery` says how the views of imagery methods are built: "nerf" fits a radiance field to the
-    live RGB capture (the protocol), "oracle" renders the simulator's ground truth (upper bound).
-    `imagery_config` is the imagery package's config (an `ImageryConfig` or its fields as a dict);
-    it must be the one the training data was built with. `pixel_size` sets the size of every image
-    the methods see (imagery views and fused heightmaps). `cache_dir=None` disables the cache.
+    The scene's `imagery` says how the views of imagery methods are built: "nerf" fits a radiance
+    field to the live RGB capture (the protocol), "oracle" renders the simulator's ground truth
+    (upper bound); its imagery config must be the one the training data was built with, and its
+    `pixel_size` sets the size of every image the methods see (imagery views and fused heightmaps).
     """
 
-    task: str
-    setting: str = "normal"
-    imagery: str = "nerf"
-    imagery_config: Any = None
-    pixel_size: float = geometry.PIXEL_SIZE
-    nerf_views: int = 30
-    nerf_image_size: tuple[int, int] = cameras.IMAGE_SIZE
+    scene: SceneSpec
     cache_dir: str | None = DEFAULT_CACHE_DIR
 
-    def __post_init__(self) -> None:
-        if self.imagery not in IMAGERY_KINDS:
-            raise ValueError(
-                f"unknown imagery {self.imagery!r}; valid choices: {', '.join(IMAGERY_KINDS)}"
-            )
-        self.nerf_image_size = tuple(self.nerf_image_size)
-        if self.imagery == "nerf":
-            self.imagery_config = _imagery_config(self.imagery_config, self.pixel_size)
+    def __init__(
+        self,
+        task: str | None = None,
+        *,
+        scene: SceneSpec | None = None,
+        imagery_config: ImageryConfig | dict[str, Any] | None = None,
+        cache_dir: str | None = DEFAULT_CACHE_DIR,
+        **fields: Any,
+    ) -> None:
+        """`EvaluationSpec(scene=..., cache_dir=...)`, or with the fields of the scene (`task`,
+        `setting`, `imagery`, `pixel_size`, `nerf_views`, `nerf_image_size`) and `imagery_config`
+        (an `ImageryConfig` or its fields as a dict) for its imagery options."""
+        if scene is None:
+            if imagery_config is not None and not isinstance(imagery_config, dict):
+                imagery_config = dataclasses.asdict(imagery_config)
+            scene = SceneSpec(task, imagery_options=imagery_config or {}, **fields)
+        elif task is not None or imagery_config is not None or fields:
+            raise TypeError("EvaluationSpec takes a scene or the fields of one, not both")
+        object.__setattr__(self, "scene", scene)
+        object.__setattr__(self, "cache_dir", cache_dir)
 
     @classmethod
     def from_datamodule(
@@ -103,7 +111,8 @@ class EvaluationSpec:
         imagery: str | None = None,
         cache_dir: str | None = DEFAULT_CACHE_DIR,
     ) -> EvaluationSpec:
-        """The spec matching the training data of a `RavensDataModule` (its generation config).
+        """The spec matching the training data of a `RavensDataModule` (the scene of its
+        generation config).
 
         `setting` defaults to the DataModule's `test_setting` for the test split (where it has
         one) and to its `setting` otherwise; `imagery` defaults to the training imagery.
@@ -113,22 +122,12 @@ class EvaluationSpec:
                 "closed-loop evaluation reads task, setting, cameras and imagery config from the "
                 "RavensDataModule; configure one under `data:`"
             )
-        config = datamodule.generation_config(split, imagery=imagery)
+        scene = datamodule.generation_config(split, imagery=imagery).scene
         if setting is None and split == "test":
             setting = getattr(datamodule, "test_setting", None)
         return cls(
-            task=config.task,
-            setting=setting or config.setting,
-            imagery=config.imagery,
-            imagery_config=config.imagery_config() if config.imagery == "nerf" else None,
-            pixel_size=config.pixel_size,
-            nerf_views=config.nerf_views,
-            nerf_image_size=config.nerf_image_size,
-            cache_dir=cache_dir,
+            scene=dataclasses.replace(scene, setting=setting or scene.setting), cache_dir=cache_dir
         )
-
-    def views(self) -> np.ndarray:
-        return geometry.view_grid(self.setting)
 
     def imagery_key(self) -> str:
         """Hash of everything the imagery of a seed depends on besides task, setting and seed
@@ -136,33 +135,16 @@ class EvaluationSpec:
         description: dict[str, Any] = {
             "world": world_fingerprint(),
             "imagery": self.imagery,
-            "views": self.views(),
+            "views": self.grid,
             "pixel_size": self.pixel_size,
         }
         if self.imagery == "nerf":
-            config = dataclasses.asdict(self.imagery_config)
             description |= {
-                "config": {k: v for k, v in config.items() if k not in IMAGERY_RUNTIME_FIELDS},
+                "config": self.scene.imagery_description(),
                 "nerf_views": self.nerf_views,
                 "nerf_image_size": list(self.nerf_image_size),
             }
         return config_hash(description)
-
-
-def _imagery_config(config: Any, pixel_size: float) -> Any:
-    """An `ImageryConfig` from None (defaults), a dict or a config; its pixel size must agree."""
-    from nerf_transporter.imagery import ImageryConfig
-
-    if config is None:
-        return ImageryConfig(pixel_size=pixel_size)
-    if isinstance(config, dict):
-        config = ImageryConfig(**({"pixel_size": pixel_size} | config))
-    if not math.isclose(config.pixel_size, pixel_size):
-        raise ValueError(
-            f"imagery config pixel_size {config.pixel_size} differs from the evaluation "
-            f"pixel_size {pixel_size}"
-        )
-    return config
 
 
 @dataclass
@@ -302,45 +284,17 @@ class Evaluator:
             return None
         return self.cache.load(self.spec.task, self.spec.setting, seed, self.spec.imagery_key())
 
-    def _build_imagery(self, env: Any, obs: dict, seed: int) -> dict[str, np.ndarray]:
-        views = self.spec.views()
-        if self.spec.imagery == "oracle":
-            rendered = [
-                env.render_orthographic(roll, pitch, pixel_size=self.spec.pixel_size)
-                for roll, pitch in views
-            ]
-            colour = np.stack([view[0] for view in rendered])
-            height = np.stack([view[1] for view in rendered])
-        else:
-            from nerf_transporter.imagery import fit_scene, render_views
-
-            config = self.spec.imagery_config
-            capture = obs["nerf"]
-            scene = fit_scene(
-                capture["rgb"], capture["intrinsics"], capture["cam_to_world"], config
-            )
-            colour, height = render_views(scene, views, config)
-        # training episodes store height as float16 (docs/conventions.md, "Data layout on disk"):
-        # evaluate on the same values
-        height = np.asarray(height).astype(np.float16).astype(np.float32)
-        imagery = {"colour": np.asarray(colour, dtype=np.uint8), "height": height, "views": views}
-        if self.cache is not None:
-            self.cache.save(
-                self.spec.task, self.spec.setting, seed, self.spec.imagery_key(), imagery
-            )
-        return imagery
-
     def _observation(
         self, input_kind: str, env: Any, obs: dict, seed: int, imagery: dict | None
     ) -> dict:
-        if input_kind == "state":
-            return {"state": obs["state"]}
-        if input_kind == "heightmap":
-            colour, height = heightmap_from_rgbd(obs["rgbd"], self.spec.pixel_size)
-            return {"heightmap": {"colour": colour, "height": height}}
-        if imagery is None:
-            imagery = self._build_imagery(env, obs, seed)
-        return {"imagery": imagery}
+        """The method's observation (`data.observation`); imagery built here goes to the cache."""
+        if input_kind == "imagery" and imagery is None:
+            imagery = imagery_observation(self.spec.scene, env, obs)
+            if self.cache is not None:
+                self.cache.save(
+                    self.spec.task, self.spec.setting, seed, self.spec.imagery_key(), imagery
+                )
+        return observation(input_kind, self.spec.scene, env, obs, imagery)
 
     # -- episodes -----------------------------------------------------------------------------
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import os
 import sys
-import tempfile
 import time
 from datetime import datetime, timezone
 from pathlib import Path
@@ -25,6 +24,7 @@ from typing import Any
 import torch
 from torch.utils.data import DataLoader, Dataset
 
+from nerf_transporter.atomic import write_new_json
 from nerf_transporter.evaluation.metrics import summarize
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
 from nerf_transporter.parallel import share_cores
@@ -62,37 +62,6 @@ class SeedDataset(Dataset):
 def seed_loader(split: str, episodes: int) -> DataLoader:
     """One seed per batch, in order (the test progress bar then counts episodes)."""
     return DataLoader(SeedDataset(split, episodes), batch_size=1, shuffle=False)
-
-
-def write_json(path: str | os.PathLike, payload: dict, *, overwrite: bool = True) -> Path:
-    """Write JSON atomically (temporary file, then rename). With `overwrite=False` the file is
-    claimed atomically too: FileExistsError when `path` exists, even if another process wrote it
-    a moment ago."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}-")
-    try:
-        with os.fdopen(handle, "w") as file:
-            json.dump(payload, file, indent=2)
-            file.write("\n")
-        if overwrite:
-            os.replace(temporary, path)
-        else:
-            os.link(temporary, path)  # fails if the name exists
-    finally:
-        Path(temporary).unlink(missing_ok=True)
-    return path
-
-
-def write_new_json(directory: str | os.PathLike, stem: str, payload: dict) -> Path:
-    """Write `<stem>.json` in `directory`, or `<stem>-2.json`, `-3`, ... if taken: never replaces."""
-    number = 1
-    while True:
-        name = f"{stem}.json" if number == 1 else f"{stem}-{number}.json"
-        try:
-            return write_json(Path(directory) / name, payload, overwrite=False)
-        except FileExistsError:
-            number += 1
 
 
 def results_record(

@@ -16,13 +16,13 @@ from __future__ import annotations
 import hashlib
 import math
 import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from nerf_transporter.atomic import write_text
 from nerf_transporter.geometry import Pose
 
 RGBA = tuple[float, float, float, float]
@@ -112,25 +112,12 @@ def cache_dir() -> Path:
     return path
 
 
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write `text` to `path` through a temporary file in the same directory, then rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as handle:
-            handle.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def cached_file(name: str, suffix: str, text: str) -> Path:
     """Path of `text` stored in the cache as `<name>-<hash><suffix>`, written if absent."""
     digest = hashlib.sha1(text.encode()).hexdigest()[:16]
     path = cache_dir() / f"{name}-{digest}{suffix}"
     if not path.exists():
-        atomic_write_text(path, text)
+        write_text(path, text)
     return path
 
 

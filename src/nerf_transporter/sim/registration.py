@@ -9,7 +9,7 @@
 Keyword arguments of `gymnasium.make` go to `nerf_transporter.sim.make_env` (`setting`, `rigs`,
 `nerf_views`, `nerf_image_size`, `render_mode`, `nerf_show_robot`). This module imports neither
 PyBullet nor the task classes, so that importing the package stays cheap: `TASK_NAMES` repeats the
-keys of `nerf_transporter.sim.TASKS` (tests/test_sim_gym.py checks that they agree).
+keys of `nerf_transporter.sim.TASKS` (tests/sim/test_registration.py checks that they agree).
 """
 
 from __future__ import annotations

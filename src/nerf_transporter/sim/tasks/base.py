@@ -24,9 +24,9 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import cv2
 import numpy as np
@@ -45,6 +45,26 @@ TRAIN_TILT = math.pi / 6
 CHALLENGING_TILT = math.pi / 4
 TABLE_CLEARANCE = 0.02  # lowest point of a tilted target above the table (m)
 SUCTION_MARGIN = 0.008  # pick points stay this far inside the top surface (m)
+
+
+# the errors `Tolerance.check` reports: key, label, factor to the printed unit, printed unit
+POSE_ERRORS = (
+    ("position_error", "position", 100.0, "cm"),  # metres
+    ("tilt_error", "tilt", 180.0 / math.pi, "deg"),  # radians
+    ("yaw_error", "yaw", 180.0 / math.pi, "deg"),  # radians
+)
+POSE_ERROR_KEYS = tuple(key for key, *_ in POSE_ERRORS)
+
+
+def pose_error_text(errors: Mapping[str, Any]) -> str:
+    """Why a pose missed its target, with the errors `errors` holds (those of `Tolerance.check`)
+    in printed units."""
+    parts = [
+        f"{label} {errors[key] * scale:.1f} {unit}"
+        for key, label, scale, unit in POSE_ERRORS
+        if isinstance(errors.get(key), float | int)
+    ]
+    return "the object did not end at the target pose" + (f" ({', '.join(parts)})" if parts else "")
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@ import nbformat
 import pytest
 from nbclient import NotebookClient
 
-NOTEBOOK = Path(__file__).resolve().parents[1] / "notebooks" / "mental_imagery.ipynb"
+NOTEBOOK = Path(__file__).resolve().parents[2] / "notebooks" / "mental_imagery.ipynb"
 
 
 @pytest.mark.slow

@@ -4,21 +4,16 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
-from test_data_generate import MARK, PIXEL, FakeEnv, changed_world
 
 from nerf_transporter import geometry as g
 from nerf_transporter.data import episode as ep
 from nerf_transporter.data import generate as gen
 from nerf_transporter.data.datamodule import RavensDataModule, sample_negative_views
 from nerf_transporter.data.preprocess import COLOUR_MEAN, COLOUR_STD
+from tests.helpers.fake_sim import MARK, PIXEL, changed_world
 
 H, W = g.image_shape(PIXEL)
 MARK_VALUE = (MARK / 255.0 - COLOUR_MEAN) / COLOUR_STD
-
-
-@pytest.fixture
-def fake_world(monkeypatch):
-    monkeypatch.setattr(gen, "_env", lambda config: FakeEnv())
 
 
 def make(tmp_path, **changes) -> RavensDataModule:

@@ -12,7 +12,7 @@ import pytest
 
 from nerf_transporter.sim.oracle_cli import main
 
-SRC = Path(__file__).resolve().parents[1] / "src"
+SRC = Path(__file__).resolve().parents[2] / "src"
 
 
 def test_episode_lines_json_summary_and_mp4_video(tmp_path, capsys):

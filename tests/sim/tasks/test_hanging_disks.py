@@ -1,11 +1,11 @@
 import math
 
 import pytest
-from task_checks import assert_deterministic, assert_oracle_reachable, in_frame, teleport
 
 from nerf_transporter.sim import make_env
 from nerf_transporter.sim.tasks import hanging_disks
 from nerf_transporter.splits import split_seed
+from tests.helpers.tasks import assert_deterministic, assert_oracle_reachable, in_frame, teleport
 
 TASK = "hanging-disks"
 

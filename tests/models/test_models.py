@@ -18,14 +18,7 @@ from nerf_transporter.models import (
 from nerf_transporter.models.mlp import quat_to_matrix
 from nerf_transporter.models.transport import correlate_spectrum, kernel_spectrum
 
-
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """Tiny convolutions run far faster on one thread than on two contended ones."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.mark.parametrize("shape", [(1, 6, 32, 16), (3, 6, 20, 13)])

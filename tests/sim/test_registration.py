@@ -15,7 +15,7 @@ import nerf_transporter  # noqa: F401  (registers the ids)
 from nerf_transporter.sim import TASKS
 from nerf_transporter.sim.registration import TASK_NAMES, env_id
 
-SRC = Path(__file__).resolve().parents[1] / "src"
+SRC = Path(__file__).resolve().parents[2] / "src"
 # check_env makes the environment once per render mode; "human" opens PyBullet's GUI window.
 HAS_DISPLAY = bool(os.environ.get("DISPLAY"))
 

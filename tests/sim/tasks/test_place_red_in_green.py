@@ -2,11 +2,11 @@ import math
 
 import numpy as np
 import pytest
-from task_checks import assert_deterministic, assert_oracle_reachable, in_frame, teleport
 
 from nerf_transporter import geometry
 from nerf_transporter.sim import make_env
 from nerf_transporter.sim.tasks import place_red_in_green
+from tests.helpers.tasks import assert_deterministic, assert_oracle_reachable, in_frame, teleport
 
 TASK = "place-red-in-green"
 

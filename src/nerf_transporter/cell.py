@@ -1,0 +1,514 @@
+"""`nerf-transporter run-cell --task T --method M [--setting S] [--imagery oracle]`: one cell of
+the results table, start to finish and resumable (README, "Results").
+
+fit (`configs/<task>[_<setting>].yaml` + `configs/model/<method>.yaml` + any `--config` overlays,
+with the budget options applied) -> the checkpoint with the best closed-loop validation success
+(the score `ModelCheckpoint(monitor="eval/success_rate")` stored in each checkpoint; rounds with
+erred episodes are never chosen, ties go to the later step, as `evaluate-checkpoints` ranks them)
+-> the first `--episodes` test seeds -> the cell JSON, written atomically to
+`<results>/<task>[-<setting>]/<method>[-oracle].json`.
+
+A cell's protocol is everything that decides its number but the code: task, setting, method,
+imagery, demonstrations, steps, batch size, learning rate, resolution, validation and test
+episodes. Each protocol fits in its own folder `<logs>/<column>/<row>/<protocol id>/version_N`, so a
+rerun resumes the latest run's last checkpoint, skips a finished fit, and skips a cell whose JSON
+holds the same protocol; `--force` measures it again from a fresh fit. A test with erred episodes
+writes no cell (its record stays in the run's `evaluation/`) and exits 1. This module drives
+`lightning fit`, so it sits beside the CLI, above the evaluation layer.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import hashlib
+import json
+import math
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import torch
+import yaml
+
+from nerf_transporter.atomic import write_json
+from nerf_transporter.cli import NoRunToResumeError, build_cli, claim_version, latest_checkpoint
+from nerf_transporter.console import HelpFormatter
+from nerf_transporter.device_info import describe_device
+from nerf_transporter.evaluation.checkpoints import (
+    best_record,
+    checkpoint_steps,
+    evaluate_checkpoints,
+)
+from nerf_transporter.evaluation.report import TASKS, cell, row_key
+from nerf_transporter.evaluation.testing import checkpoint_step, erred_episodes_text
+from nerf_transporter.methods import METHODS
+
+CALLBACK = "SuccessRateCallback"
+CHECKPOINT = "ModelCheckpoint"
+MONITOR = "eval/success_rate"
+SEGMENTS = "fit-segments.json"  # in a run folder: one entry per fit started there
+LOGGER = "lightning.pytorch.loggers.TensorBoardLogger"
+
+
+class CellError(ValueError):
+    """A cell that cannot be run as asked (bad option, config or results file)."""
+
+
+def config_files(config_dir: Path, task: str, setting: str, method: str) -> list[Path]:
+    """The task's full config for the setting and the method's overlay."""
+    stem = task.replace("-", "_") + ("" if setting == "normal" else f"_{setting}")
+    files = [config_dir / f"{stem}.yaml", config_dir / "model" / f"{method}.yaml"]
+    for path in files:
+        if not path.is_file():
+            available = sorted(p.name for p in config_dir.glob("*.yaml"))
+            raise CellError(
+                f"no config {path} for {task} {setting} / {method} "
+                f"(task configs in {config_dir}: {', '.join(available) or 'none'})"
+            )
+    return files
+
+
+def resolve_config(files: list[Path]) -> dict[str, Any]:
+    """The config LightningCLI resolves from `files` (defaults filled in, class paths in full)."""
+    args: list[str] = []
+    for path in files:
+        args += ["--config", str(path)]
+    cli = build_cli(args, run=False)
+    return yaml.safe_load(cli.parser.dump(cli.config))
+
+
+def _callback(config: dict[str, Any], name: str) -> dict[str, Any]:
+    found = [
+        callback
+        for callback in config.get("trainer", {}).get("callbacks") or []
+        if str(callback.get("class_path", "")).rsplit(".", 1)[-1] == name
+    ]
+    if len(found) != 1:
+        raise CellError(
+            f"the config has {len(found)} {name} callbacks, run-cell needs one: it picks the "
+            f"checkpoint by closed-loop validation success ({CALLBACK} + {CHECKPOINT} monitoring "
+            f"{MONITOR}, as in configs/<task>.yaml)"
+        )
+    found[0].setdefault("init_args", {})
+    return found[0]["init_args"]
+
+
+def apply_budget(
+    config: dict[str, Any],
+    *,
+    steps: int | None = None,
+    batch_size: int | None = None,
+    lr: float | None = None,
+    episodes: int | None = None,
+    imagery: str | None = None,
+    val_every: int | None = None,
+    val_episodes: int | None = None,
+    eval_workers: int | None = None,
+) -> dict[str, Any]:
+    """A copy of `config` with the given options in place (None keeps the config's value);
+    checks that validation checkpoints fall on the last step."""
+    config = copy.deepcopy(config)
+    trainer, model, data = (config.setdefault(key, {}) for key in ("trainer", "model", "data"))
+    model_args, data_args = model.setdefault("init_args", {}), data.setdefault("init_args", {})
+    validation, checkpoint = _callback(config, CALLBACK), _callback(config, CHECKPOINT)
+    if checkpoint.get("monitor") != MONITOR:
+        raise CellError(
+            f"the config's {CHECKPOINT} monitors {checkpoint.get('monitor')}, not {MONITOR}"
+        )
+    updates = [
+        (trainer, "max_steps", steps),
+        (data_args, "batch_size", batch_size),
+        (model_args, "lr", lr),
+        (data_args, "test_episodes", episodes),
+        (data_args, "imagery", imagery),
+        (validation, "every_n_steps", val_every),
+        (checkpoint, "every_n_train_steps", val_every),
+        (validation, "episodes", val_episodes),
+        (validation, "eval_workers", eval_workers),
+    ]
+    for section, key, value in updates:
+        if value is not None:
+            if not isinstance(value, str) and value <= 0:
+                raise CellError(f"{key} must be > 0, got {value}")
+            section[key] = value
+    every, steps = validation.get("every_n_steps"), trainer.get("max_steps")
+    if checkpoint.get("every_n_train_steps") != every:
+        raise CellError(
+            f"validation every {every} steps but checkpoints every "
+            f"{checkpoint.get('every_n_train_steps')}: they must coincide (--val-every sets both)"
+        )
+    if not isinstance(steps, int) or steps <= 0 or steps % every:
+        raise CellError(
+            f"{steps} training steps is not a multiple of the validation interval {every}: the "
+            "last steps would have no validated checkpoint (set --steps or --val-every)"
+        )
+    return config
+
+
+def cell_protocol(config: dict[str, Any], method: str, input_kind: str) -> dict[str, Any]:
+    """What decides a cell's number apart from the code, read from its resolved config."""
+    model = config["model"].get("init_args", {})
+    data = config["data"].get("init_args", {})
+    validation = _callback(config, CALLBACK)
+    return {
+        "task": data["task"],
+        "setting": data.get("setting", "normal"),
+        "method": method,
+        "imagery": data.get("imagery", "nerf") if input_kind == "imagery" else None,
+        "n_demos": data.get("n_demos"),
+        "steps": config["trainer"]["max_steps"],
+        "batch_size": data.get("batch_size"),
+        "lr": model.get("lr"),
+        "pixel_size": data.get("pixel_size"),
+        "n_rotations": data.get("n_rotations"),
+        "validation_every": validation["every_n_steps"],
+        "validation_episodes": validation.get("episodes"),
+        "test_episodes": data.get("test_episodes"),
+    }
+
+
+def protocol_id(protocol: dict[str, Any]) -> str:
+    """12 hex digits naming a protocol (its fit folder)."""
+    return hashlib.sha256(json.dumps(protocol, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def cell_name(protocol: dict[str, Any]) -> tuple[str, str]:
+    """(column folder `<task>[-<setting>]`, row `<method>[-oracle]`) of a cell."""
+    setting = protocol["setting"]
+    column = protocol["task"] if setting == "normal" else f"{protocol['task']}-{setting}"
+    return column, row_key(protocol["method"], protocol["imagery"])
+
+
+def cell_path(results: Path, protocol: dict[str, Any]) -> Path:
+    column, row = cell_name(protocol)
+    return results / column / f"{row}.json"
+
+
+def measured(path: Path, protocol: dict[str, Any]) -> bool:
+    """Whether `path` holds this cell for `protocol`; a cell of another protocol is an error."""
+    if not path.exists():
+        return False
+    try:
+        stored = json.loads(path.read_text())["protocol"]
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise CellError(f"unreadable cell {path} ({error}); --force replaces it") from error
+    if stored == protocol:
+        return True
+    changed = ", ".join(
+        f"{key} {stored.get(key)} there, {protocol.get(key)} here"
+        for key in sorted(set(stored) | set(protocol))
+        if stored.get(key) != protocol.get(key)
+    )
+    raise CellError(
+        f"{path} holds this cell under another protocol ({changed}); --force replaces it, "
+        "--results <folder> keeps both"
+    )
+
+
+def fit_run(runs: Path, force: bool) -> tuple[Path, Path | None]:
+    """(run folder, checkpoint to resume from or None): the latest run under `runs` with a
+    checkpoint, unless `force` or there is none, then a newly claimed `version_N`."""
+    if not force:
+        try:
+            checkpoint = latest_checkpoint(runs)
+            return checkpoint.parent.parent, checkpoint
+        except NoRunToResumeError:
+            pass
+    return runs / f"version_{claim_version(runs)}", None
+
+
+def git_state() -> dict[str, Any]:
+    """{"commit": HEAD of the package's checkout, "dirty": tracked files changed}; None each
+    outside a git checkout."""
+    root = Path(__file__).resolve().parent
+
+    def git(*args: str) -> str | None:
+        try:
+            result = subprocess.run(
+                ["git", "-C", str(root), *args], capture_output=True, text=True, timeout=30
+            )
+        except (OSError, subprocess.SubprocessError):
+            return None
+        return result.stdout.strip() if result.returncode == 0 else None
+
+    commit = git("rev-parse", "HEAD")
+    status = git("status", "--porcelain", "--untracked-files=no") if commit else None
+    return {"commit": commit, "dirty": None if status is None else bool(status)}
+
+
+def _read_segments(run_dir: Path) -> list[dict[str, Any]]:
+    path = run_dir / SEGMENTS
+    return json.loads(path.read_text()) if path.exists() else []
+
+
+def fit(config: dict[str, Any], run_dir: Path, resume: Path | None, device: str) -> None:
+    """`lightning fit` of `config` logging into `run_dir`, from `resume` if given; the segment
+    (start, commit, machine, wall-clock time once done) is recorded in `run_dir/fit-segments.json`."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    config = copy.deepcopy(config)
+    config["trainer"]["logger"] = {
+        "class_path": LOGGER,
+        "init_args": {
+            "save_dir": str(run_dir.parent),
+            "name": "",
+            "version": run_dir.name,
+            "default_hp_metric": False,
+        },
+    }
+    segments = _read_segments(run_dir)
+    segment = {
+        "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "start_time": time.time(),
+        "from_step": checkpoint_step(resume) if resume else 0,
+        "git": git_state(),
+        "machine": describe_device(device),
+        "wall_s": None,
+    }
+    write_json(run_dir / SEGMENTS, segments + [segment])
+    with tempfile.NamedTemporaryFile("w", suffix=".yaml", prefix=".cell-", dir=run_dir) as file:
+        yaml.safe_dump(config, file, sort_keys=False)
+        file.flush()
+        args = ["fit", "--config", file.name]
+        build_cli(args + (["--ckpt_path", str(resume)] if resume else []))
+    segment["wall_s"] = time.time() - segment["start_time"]
+    write_json(run_dir / SEGMENTS, segments + [segment])
+
+
+def train_wall_s(run_dir: Path) -> float:
+    """Wall-clock time of the run's fit segments; an interrupted one counts up to the newest
+    checkpoint it wrote (the steps after it were trained again)."""
+    checkpoints = [path.stat().st_mtime for path in (run_dir / "checkpoints").glob("*.ckpt")]
+    total = 0.0
+    for segment in _read_segments(run_dir):
+        if segment["wall_s"] is not None:
+            total += segment["wall_s"]
+        else:
+            written = [mtime for mtime in checkpoints if mtime >= segment["start_time"]]
+            total += max(written, default=segment["start_time"]) - segment["start_time"]
+    return total
+
+
+def validation_records(run_dir: Path, episodes: int) -> list[dict[str, Any]]:
+    """One record per checkpoint of the run (by step): the validation success ModelCheckpoint
+    stored with it; `errors` is 1 where that round had erred episodes (stored as -inf)."""
+    records = []
+    for step, path in checkpoint_steps(run_dir):
+        states = torch.load(path, map_location="cpu", weights_only=True, mmap=True)["callbacks"]
+        scores = [
+            state["current_score"]
+            for key, state in states.items()
+            if key.startswith(CHECKPOINT) and state.get("monitor") == MONITOR
+        ]
+        if not scores or scores[0] is None:
+            continue  # saved without a validation round (e.g. by an interrupted fit)
+        rate = float(scores[0])
+        valid = math.isfinite(rate)
+        successes = round(rate * episodes) if valid else None
+        records.append(
+            {
+                "checkpoint": str(path),
+                "global_step": step,
+                "success_rate": successes / episodes if valid else None,
+                "successes": successes,
+                "episodes": episodes if valid else 0,
+                "errors": 0 if valid else 1,
+            }
+        )
+    return records
+
+
+def run_cell(
+    *,
+    task: str,
+    method: str,
+    setting: str = "normal",
+    imagery: str | None = None,
+    steps: int | None = None,
+    batch_size: int | None = None,
+    lr: float | None = None,
+    episodes: int = 100,
+    val_every: int | None = None,
+    val_episodes: int | None = None,
+    overlays: list[Path] | None = None,
+    config_dir: Path = Path("configs"),
+    results: Path = Path("results"),
+    logs: Path = Path("logs/cells"),
+    force: bool = False,
+    eval_workers: int | None = None,
+    device: str | None = None,
+) -> tuple[Path, dict[str, Any] | None]:
+    """Run one cell (see the module's docstring). Returns (cell path, cell record); the record is
+    None where the cell was already measured under this protocol, and holds no cell (nothing
+    written) where test episodes erred (`errors` > 0)."""
+    if method not in METHODS:
+        raise CellError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+    input_kind = METHODS[method].input_kind
+    if imagery is not None and input_kind != "imagery":
+        raise CellError(
+            f"--imagery applies to methods that read imagery; {method} reads {input_kind}"
+        )
+    files = config_files(config_dir, task, setting, method) + list(overlays or [])
+    config = apply_budget(
+        resolve_config(files),
+        steps=steps,
+        batch_size=batch_size,
+        lr=lr,
+        episodes=episodes,
+        imagery=imagery,
+        val_every=val_every,
+        val_episodes=val_episodes,
+        eval_workers=eval_workers,
+    )
+    protocol = cell_protocol(config, method, input_kind)
+    path = cell_path(results, protocol)
+    if not force and measured(path, protocol):
+        return path, None
+    device = device or ("cuda" if torch.cuda.is_available() else "cpu")
+    run_dir, resume = fit_run(logs.joinpath(*cell_name(protocol), protocol_id(protocol)), force)
+    if resume is None or checkpoint_step(resume) < protocol["steps"]:
+        fit(config, run_dir, resume, device)
+    validation = validation_records(run_dir, protocol["validation_episodes"])
+    chosen = best_record(validation)
+    if chosen is None:
+        raise CellError(
+            f"no checkpoint under {run_dir} has a validation round without erred episodes; see "
+            "the fit's log, fix the cause and run again with --force"
+        )
+    start = time.perf_counter()
+    (record,) = evaluate_checkpoints(
+        run_dir,
+        "test",
+        protocol["test_episodes"],
+        only=[Path(chosen["checkpoint"])],
+        device=torch.device(device),
+        workers=eval_workers,
+    )
+    test_wall_s = time.perf_counter() - start
+    if record["errors"]:
+        return path, record
+    segments = _read_segments(run_dir)
+    payload = {
+        "protocol": protocol,
+        "protocol_id": protocol_id(protocol),
+        **{key: protocol[key] for key in ("task", "setting", "method", "imagery")},
+        **{key: record[key] for key in ("episodes", "successes", "success_rate", "ci_low")},
+        **{key: record[key] for key in ("ci_high", "confidence", "errors", "erred_seeds")},
+        "failures": record["failures"],
+        "test_seeds": [result["seed"] for result in record["episode_results"]],
+        "checkpoint": {
+            "path": chosen["checkpoint"],
+            "step": chosen["global_step"],
+            "validation_success_rate": chosen["success_rate"],
+            "validation_successes": chosen["successes"],
+            "validation_episodes": chosen["episodes"],
+        },
+        "validation": [
+            {"step": r["global_step"], "success_rate": r["success_rate"]} for r in validation
+        ],
+        "steps": protocol["steps"],
+        "batch_size": protocol["batch_size"],
+        "lr": protocol["lr"],
+        "train_wall_s": train_wall_s(run_dir),
+        "test_wall_s": test_wall_s,
+        "machine": {
+            "fit": [segment["machine"] for segment in segments],
+            "test": describe_device(device),
+        },
+        "torch": torch.__version__,
+        "git": git_state(),
+        "fit_git": [segment["git"] for segment in segments],
+        "world": record["world"],
+        "run_dir": str(run_dir),
+        "config": config,
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "episode_results": record["episode_results"],
+    }
+    write_json(path, payload)
+    return path, payload
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="nerf-transporter run-cell",
+        description="One cell of the results table: fit, pick the checkpoint by closed-loop "
+        "validation success, test on the first test seeds, write the cell JSON. Resumable; a "
+        "cell already measured under the same protocol is skipped.",
+        formatter_class=HelpFormatter,
+    )
+    parser.add_argument("--task", required=True, choices=TASKS)
+    parser.add_argument("--method", required=True, choices=list(METHODS))
+    parser.add_argument("--setting", default="normal", choices=("normal", "challenging", "flat"))
+    parser.add_argument(
+        "--imagery",
+        choices=("nerf", "oracle"),
+        help="imagery of an imagery method, in training and test (default: the config's, nerf)",
+    )
+    parser.add_argument("--steps", type=int, help="training steps (default: the task config's)")
+    parser.add_argument("--batch-size", type=int, help="default: the task config's")
+    parser.add_argument("--lr", type=float, help="learning rate (default: the config's)")
+    parser.add_argument("--episodes", type=int, default=100, help="test episodes (first seeds)")
+    parser.add_argument("--val-every", type=int, help="steps between validation rounds")
+    parser.add_argument("--val-episodes", type=int, help="validation episodes per round")
+    parser.add_argument(
+        "--config",
+        type=Path,
+        action="append",
+        default=[],
+        help="another config applied after the task's and the method's (repeatable)",
+    )
+    parser.add_argument("--configs", type=Path, default=Path("configs"), help="config folder")
+    parser.add_argument("--results", type=Path, default=Path("results"), help="cell folder")
+    parser.add_argument("--logs", type=Path, default=Path("logs/cells"), help="fit runs folder")
+    parser.add_argument("--force", action="store_true", help="measure again from a fresh fit")
+    parser.add_argument(
+        "--eval-workers",
+        type=int,
+        help="processes running validation and test episodes (default: one per available core)",
+    )
+    parser.add_argument("--device", help="torch device (default: cuda if present)")
+    args = parser.parse_args(argv)
+    # run-cell drives LightningCLI from Python on purpose, with its own arguments
+    warnings.filterwarnings("ignore", message=r".*LightningCLI's args parameter is intended")
+    try:
+        path, record = run_cell(
+            task=args.task,
+            method=args.method,
+            setting=args.setting,
+            imagery=args.imagery,
+            steps=args.steps,
+            batch_size=args.batch_size,
+            lr=args.lr,
+            episodes=args.episodes,
+            val_every=args.val_every,
+            val_episodes=args.val_episodes,
+            overlays=args.config,
+            config_dir=args.configs,
+            results=args.results,
+            logs=args.logs,
+            force=args.force,
+            eval_workers=args.eval_workers,
+            device=args.device,
+        )
+    except (CellError, FileNotFoundError) as error:
+        print(f"nerf-transporter run-cell: {error}", file=sys.stderr)
+        return 2
+    if record is None:
+        print(
+            f"{path} holds this cell under the same protocol: skipped (--force measures it again)"
+        )
+        return 0
+    if record["errors"]:
+        print(
+            f"nerf-transporter run-cell: no cell written to {path}: {erred_episodes_text(record)}\n"
+            "Fix the cause and run the same command again (the fit is kept).",
+            file=sys.stderr,
+        )
+        return 1
+    print(f"{path}: {cell(record)}, checkpoint at step {record['checkpoint']['step']}")
+    return 0

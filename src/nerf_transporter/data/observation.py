@@ -1,0 +1,175 @@
+"""What a method sees of a scene, built from its capture: one builder for generation and evaluation.
+
+A `SceneSpec` fixes everything the observation of a seed depends on besides the seed: the world
+(task, setting), the cameras (`nerf` rig size), the pixel size and how imagery is built. Both the
+generator's `GenerationConfig` (data/generate.py) and the evaluator's `EvaluationSpec`
+(evaluation/rollout.py) are built around one, so the data a method is trained on and the scenes it
+is judged on are made the same way (docs/conventions.md, "Data layout on disk" and "Evaluation
+protocol"):
+
+- imagery (the imagery methods): the simulator's orthographic view grid (`oracle`) or a radiance
+  field fitted to the `nerf` rig's RGB images and rendered over that grid (`nerf`), rounded as
+  episodes store it (colour uint8, height float16);
+- the fused RGB-D heightmap (the heightmap methods);
+- the state vector (GT-State MLP).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from nerf_transporter import geometry as g
+from nerf_transporter.data.heightmap import heightmap_from_rgbd
+from nerf_transporter.sim import SETTINGS, TASKS, cameras
+
+if TYPE_CHECKING:
+    from nerf_transporter.imagery import ImageryConfig
+
+INPUT_KINDS = ("imagery", "heightmap", "state")  # what a method reads (its `input_kind`)
+IMAGERY_KINDS = ("nerf", "oracle")
+# ImageryConfig fields that change how fast imagery is built, not what it is
+IMAGERY_RUNTIME_FIELDS = ("device", "progress", "threads", "render_batch")
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """The scene of a seed and how it is observed: task, setting, imagery kind, pixel size of every
+    image a method sees, the `nerf` rig (`nerf_views` cameras of `nerf_image_size`) and
+    `imagery_options` (`ImageryConfig` fields for `nerf` imagery; the pixel size is the scene's)."""
+
+    task: str
+    setting: str = "normal"
+    imagery: str = "nerf"
+    pixel_size: float = g.PIXEL_SIZE
+    nerf_views: int = 30
+    nerf_image_size: tuple[int, int] = cameras.IMAGE_SIZE
+    imagery_options: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.task not in TASKS:
+            raise ValueError(f"unknown task {self.task!r}; valid tasks: {', '.join(sorted(TASKS))}")
+        if self.setting not in SETTINGS:
+            raise ValueError(
+                f"unknown setting {self.setting!r}; valid settings: {', '.join(SETTINGS)}"
+            )
+        if not (math.isfinite(self.pixel_size) and self.pixel_size > 0) or (
+            min(g.image_shape(self.pixel_size)) < 1
+        ):
+            raise ValueError(
+                f"--pixel-size must be > 0 and smaller than the workspace (metres per pixel), "
+                f"got {self.pixel_size!r}"
+            )
+        if self.nerf_views < 0:
+            raise ValueError(f"--nerf-views must be >= 0, got {self.nerf_views}")
+        if self.imagery not in IMAGERY_KINDS:
+            raise ValueError(
+                f"unknown imagery {self.imagery!r}; valid choices: {', '.join(IMAGERY_KINDS)}"
+            )
+        if self.imagery == "nerf" and self.nerf_views < 1:
+            raise ValueError("--imagery nerf needs --nerf-views >= 1")
+        options_pixel_size = self.imagery_options.get("pixel_size", self.pixel_size)
+        if not math.isclose(options_pixel_size, self.pixel_size):
+            raise ValueError(
+                f"imagery config pixel_size {options_pixel_size} differs from the pixel_size "
+                f"{self.pixel_size}"
+            )
+        object.__setattr__(self, "nerf_image_size", tuple(int(v) for v in self.nerf_image_size))
+        object.__setattr__(self, "imagery_options", dict(self.imagery_options))
+        if self.imagery == "nerf":
+            self.imagery_config()  # validates the options
+
+    @property
+    def grid(self) -> np.ndarray:
+        """The view grid of the setting [V, 2] (roll, pitch)."""
+        return g.view_grid(self.setting)
+
+    def imagery_config(self) -> ImageryConfig:
+        """The imagery package's config for `nerf` imagery (at the scene's pixel size)."""
+        from nerf_transporter.imagery import ImageryConfig
+
+        return ImageryConfig(
+            **{**self.imagery_options, "pixel_size": self.pixel_size, "progress": False}
+        )
+
+    def imagery_description(self) -> dict[str, Any]:
+        """The `nerf` imagery config without the fields that only change how fast it is built."""
+        config = dataclasses.asdict(self.imagery_config())
+        return {key: value for key, value in config.items() if key not in IMAGERY_RUNTIME_FIELDS}
+
+
+class SceneConfig:
+    """Base of a config built around a `SceneSpec` (its `scene`): the scene's public attributes
+    read through it (`config.task` is `config.scene.task`, `config.grid` its `grid`)."""
+
+    scene: SceneSpec
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "scene" or name.startswith("_"):  # unset (e.g. while unpickling), or private
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        return getattr(self.scene, name)
+
+
+def oracle_views(env: Any, views: np.ndarray, pixel_size: float) -> tuple[np.ndarray, np.ndarray]:
+    """The simulator's ground truth of `views` [K, 2] (roll, pitch) as it stands: colour
+    [K, H, W, 3] and height [K, H, W]."""
+    rendered = [
+        env.render_orthographic(roll, pitch, pixel_size=pixel_size) for roll, pitch in views
+    ]
+    return np.stack([view[0] for view in rendered]), np.stack([view[1] for view in rendered])
+
+
+def fitted_views(
+    capture: dict[str, np.ndarray], views: np.ndarray, config: ImageryConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """A radiance field fitted to the `nerf` rig's `capture` (rgb, intrinsics, cam_to_world),
+    rendered over `views`: colour [V, H, W, 3] and height [V, H, W]."""
+    from nerf_transporter.imagery import fit_scene, render_views
+
+    scene = fit_scene(capture["rgb"], capture["intrinsics"], capture["cam_to_world"], config)
+    return render_views(scene, views, config)
+
+
+def scene_imagery(scene: SceneSpec, env: Any, capture: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The imagery of the scene in `env` just captured (`capture`, the observation of reset), as
+    built: the simulator's views for `oracle` imagery, the fitted field's for `nerf`."""
+    if scene.imagery == "oracle":
+        return oracle_views(env, scene.grid, scene.pixel_size)
+    return fitted_views(capture["nerf"], scene.grid, scene.imagery_config())
+
+
+def rounded(colour: np.ndarray, height: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Views as episodes store them: colour uint8, height float16."""
+    return np.asarray(colour).astype(np.uint8), np.asarray(height).astype(np.float16)
+
+
+def imagery_observation(scene: SceneSpec, env: Any, capture: dict) -> dict[str, np.ndarray]:
+    """The imagery an imagery method acts on: the views of the grid with the rounding of the
+    training episodes (height then as float32), and the grid."""
+    colour, height = rounded(*scene_imagery(scene, env, capture))
+    return {"colour": colour, "height": height.astype(np.float32), "views": scene.grid}
+
+
+def observation(
+    input_kind: str,
+    scene: SceneSpec,
+    env: Any,
+    capture: dict,
+    imagery: dict[str, np.ndarray] | None = None,
+) -> dict[str, Any]:
+    """What a method of `input_kind` sees of the scene just captured: the state vector, the fused
+    RGB-D heightmap, or the imagery (`imagery` when given, e.g. from a cache, else built)."""
+    if input_kind == "state":
+        return {"state": capture["state"]}
+    if input_kind == "heightmap":
+        colour, height = heightmap_from_rgbd(capture["rgbd"], scene.pixel_size)
+        return {"heightmap": {"colour": colour, "height": height}}
+    if input_kind != "imagery":
+        raise ValueError(f"unknown input_kind {input_kind!r}; valid: {', '.join(INPUT_KINDS)}")
+    if imagery is None:
+        imagery = imagery_observation(scene, env, capture)
+    return {"imagery": imagery}

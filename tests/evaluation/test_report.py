@@ -1,0 +1,210 @@
+"""`nerf-transporter report`: the results table from results.json files."""
+
+import json
+
+import cv2
+import pytest
+
+from nerf_transporter.cli import main as cli_main
+from nerf_transporter.evaluation.metrics import wilson_interval
+from nerf_transporter.evaluation.report import README_END, README_START, table_plot
+from nerf_transporter.evaluation.report import main as report_main
+
+
+def _write(root, run, method, task, setting, successes, episodes, low, high, created, name=None):
+    path = root / run / "checkpoints" / (name or "results.json")
+    path.parent.mkdir(parents=True)
+    record = {
+        "method": method,
+        "task": task,
+        "setting": setting,
+        "split": "test",
+        "episodes": episodes,
+        "successes": successes,
+        "success_rate": successes / episodes,
+        "ci_low": low,
+        "ci_high": high,
+        "created": created,
+    }
+    path.write_text(json.dumps(record))
+
+
+@pytest.fixture
+def logs(tmp_path):
+    root = tmp_path / "logs"
+    _write(
+        root,
+        "bi/mira/version_0",
+        "mira",
+        "block-insertion",
+        "normal",
+        3,
+        20,
+        0.05,
+        0.36,
+        "2024-01-01T00:00:00",
+    )
+    # a newer run of the same cell replaces the older one
+    _write(
+        root,
+        "bi/mira/version_1",
+        "mira",
+        "block-insertion",
+        "normal",
+        16,
+        20,
+        0.584,
+        0.919,
+        "2024-01-02T00:00:00",
+    )
+    _write(
+        root,
+        "bi/se2/version_0",
+        "transporter_se2",
+        "block-insertion",
+        "normal",
+        5,
+        20,
+        0.112,
+        0.469,
+        "2024-01-01T00:00:00",
+    )
+    _write(
+        root,
+        "prg/mira/version_0",
+        "mira",
+        "place-red-in-green",
+        "challenging",
+        50,
+        100,
+        0.4038,
+        0.5962,
+        "2024-01-01T00:00:00",
+        name="results-challenging.json",  # a Normal-trained model tested in Challenging
+    )
+    _write(
+        root,
+        "bi-flat/se2/version_0",
+        "transporter_se2",
+        "block-insertion",
+        "flat",
+        20,
+        20,
+        0.839,
+        1.0,
+        "2024-01-01T00:00:00",
+    )
+    return root
+
+
+EXPECTED = """\
+| method | block-insertion | place-red-in-green | hanging-disks | stacking-kits | place-red-in-green Challenging | block-insertion Flat |
+| --- | --- | --- | --- | --- | --- | --- |
+| mira (ours) | 80% (20, 58-92) |  |  |  | 50% (100, 40-60) |  |
+| paper: its method | 80% | 86% | 40% | 32% | 50% |  |
+| mira, oracle imagery |  |  |  |  |  |  |
+| Transporter-SE(2) | 25% (20, 11-47) |  |  |  |  | 100% (20, 84-100) |
+| paper: Transporter-SE(2) | 21% | 74% | 32% | 18% | 18% |  |
+| Transporter-SE(3) |  |  |  |  |  |  |
+| paper: Transporter-SE(3) | 20% | 77% | 32% | 16% | 20% |  |
+| Form2Fit |  |  |  |  |  |  |
+| paper: Form2Fit | 0% | 79% | 1% | 4% | 30% |  |
+| GT-State MLP |  |  |  |  |  |  |
+| paper: GT-State MLP | 0% | 1% | 0% | 0% | 1% |  |
+"""
+
+
+def test_report_renders_the_markdown_table(logs, capsys):
+    assert cli_main(["report", str(logs)]) == 0
+    assert capsys.readouterr().out == EXPECTED
+
+
+def test_report_csv(logs, capsys):
+    assert report_main([str(logs), "--csv"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == (
+        "method,block-insertion,place-red-in-green,hanging-disks,stacking-kits,"
+        "place-red-in-green Challenging,block-insertion Flat"
+    )
+    assert lines[4] == 'Transporter-SE(2),"25% (20, 11-47)",,,,,"100% (20, 84-100)"'
+
+
+def write_cell(root, row, task, setting, successes, episodes, imagery=None):
+    """A cell as run-cell writes it (the fields the report reads, and its protocol)."""
+    column = task if setting == "normal" else f"{task}-{setting}"
+    low, high = wilson_interval(successes, episodes)
+    method = row.removesuffix("-oracle")
+    record = {
+        "protocol": {"task": task, "setting": setting, "method": method, "imagery": imagery},
+        "task": task,
+        "setting": setting,
+        "method": method,
+        "imagery": imagery,
+        "episodes": episodes,
+        "successes": successes,
+        "ci_low": low,
+        "ci_high": high,
+        "errors": 0,
+        "created": "2026-11-25T00:00:00+00:00",
+    }
+    path = root / column / f"{row}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(record))
+
+
+def test_cells_of_a_results_folder_fill_their_rows_the_plot_and_the_readme(tmp_path, capsys):
+    results = tmp_path / "results"
+    write_cell(results, "mira", "block-insertion", "normal", 81, 100, imagery="nerf")
+    write_cell(results, "mira-oracle", "block-insertion", "normal", 90, 100, imagery="oracle")
+    write_cell(results, "form2fit", "place-red-in-green", "challenging", 30, 100)
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# title\n\n{README_START}\nold text\n{README_END}\n\nthe rest\n")
+    plot = tmp_path / "results" / "table1.png"
+    assert report_main([str(results), "--readme", str(readme), "--plot", str(plot)]) == 0
+    rows = capsys.readouterr().out.splitlines()[2:]
+    assert rows[0].startswith("| mira (ours) | 81% (100, 72-87) |  |")
+    assert rows[2].startswith("| mira, oracle imagery | 90% (100, 83-94) |  |")
+    assert rows[7].endswith("| 30% (100, 22-40) |")  # Form2Fit, place-red-in-green Challenging
+    text = readme.read_text()
+    assert text.startswith(f"# title\n\n{README_START}\n") and text.endswith(
+        f"{README_END}\n\nthe rest\n"
+    )
+    assert "old text" not in text and "3 of 30 cells measured" in text
+    assert "| mira, oracle imagery | 90% (100, 83-94) |" in text
+    assert "![results table as bars](results/table1.png)" in text
+    image = cv2.cvtColor(cv2.imread(str(plot)), cv2.COLOR_BGR2RGB)
+    empty = table_plot([])
+    assert image.shape == empty.shape
+    # mira's colour (its legend square) fills a bar below the legend, where nothing measured has none
+    mira = empty[51, 67]
+    assert (image[70:] == mira).all(axis=2).sum() > 1000
+    assert (empty[70:] == mira).all(axis=2).sum() == 0
+
+
+def test_an_empty_results_folder_gives_the_paper_rows_and_says_what_to_run(tmp_path, capsys):
+    readme = tmp_path / "README.md"
+    readme.write_text(f"{README_START}\n{README_END}\n")
+    assert report_main([str(tmp_path), "--readme", str(readme)]) == 0
+    captured = capsys.readouterr()
+    assert "run-cell" in captured.err and "lightning test" in captured.err
+    assert "| paper: its method | 80% | 86% | 40% | 32% | 50% |" in captured.out
+    assert "| mira (ours) |  |  |  |  |  |" in captured.out
+    text = readme.read_text()
+    assert "no cell has been measured yet" in text and "table1.png" not in text
+
+
+def test_report_names_a_readme_without_markers_and_a_missing_folder(tmp_path, capsys):
+    readme = tmp_path / "README.md"
+    readme.write_text("# no markers\n")
+    assert report_main([str(tmp_path), "--readme", str(readme)]) == 1
+    assert "the README has no results block" in capsys.readouterr().err
+    assert readme.read_text() == "# no markers\n"
+    assert report_main([str(tmp_path / "missing")]) == 1
+    assert "no such directory" in capsys.readouterr().err
+
+
+def test_report_names_a_corrupt_results_file(logs, capsys):
+    bad = logs / "bi/mira/version_1/checkpoints/results.json"
+    bad.write_text("{not json")
+    assert report_main([str(logs)]) == 1
+    assert str(bad) in capsys.readouterr().err

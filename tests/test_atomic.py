@@ -1,0 +1,45 @@
+"""Atomic writes: the target holds the old content or the whole new one, never a part, and
+`write_new_json` never replaces a file."""
+
+import json
+
+import pytest
+
+from nerf_transporter.atomic import write_file, write_json, write_new_json, write_text
+
+
+def test_write_json_replaces_with_indented_json(tmp_path):
+    path = tmp_path / "deep" / "record.json"
+    write_json(path, {"b": 1, "a": [1, 2]})
+    write_json(path, {"b": 2, "a": [3]}, sort_keys=True)
+    assert path.read_text() == '{\n  "a": [\n    3\n  ],\n  "b": 2\n}\n'
+    assert [p.name for p in path.parent.iterdir()] == ["record.json"]  # no temporary left
+
+
+def test_an_interrupted_write_leaves_the_old_file_and_no_temporary(tmp_path):
+    path = write_text(tmp_path / "asset.obj", "old\n")
+
+    def dying(file):
+        file.write(b"half of the new")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        write_file(path, dying)
+    assert path.read_text() == "old\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["asset.obj"]
+
+
+def test_a_name_taken_is_never_replaced(tmp_path):
+    first = write_new_json(tmp_path, "results-best", {"run": 1})
+    second = write_new_json(tmp_path, "results-best", {"run": 2})
+    third = write_new_json(tmp_path, "results-best", {"run": 3})
+    assert [p.name for p in (first, second, third)] == [
+        "results-best.json",
+        "results-best-2.json",
+        "results-best-3.json",
+    ]
+    assert json.loads(first.read_text()) == {"run": 1}
+    with pytest.raises(FileExistsError):
+        write_json(second, {"run": 4}, overwrite=False)
+    assert json.loads(second.read_text()) == {"run": 2}
+    assert len(list(tmp_path.iterdir())) == 3

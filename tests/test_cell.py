@@ -1,0 +1,246 @@
+"""`nerf-transporter run-cell`: protocol, skip, resume and the cell JSON (fit and test faked here;
+the slow test at the end runs a tiny cell for real)."""
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+
+from nerf_transporter import cell as cell_module
+from nerf_transporter.cell import CellError, apply_budget, run_cell
+from nerf_transporter.evaluation.metrics import summarize
+from nerf_transporter.evaluation.report import load_results, results_table
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIG = {
+    "seed_everything": 0,
+    "trainer": {
+        "max_steps": 40000,
+        "callbacks": [
+            {
+                "class_path": "nerf_transporter.evaluation.callback.SuccessRateCallback",
+                "init_args": {"every_n_steps": 1000, "episodes": 20},
+            },
+            {
+                "class_path": "lightning.pytorch.callbacks.ModelCheckpoint",
+                "init_args": {"monitor": "eval/success_rate", "every_n_train_steps": 1000},
+            },
+        ],
+    },
+    "model": {"class_path": "nerf_transporter.methods.Mira", "init_args": {"lr": 1.0e-4}},
+    "data": {
+        "class_path": "nerf_transporter.data.datamodule.RavensDataModule",
+        "init_args": {
+            "task": "block-insertion",
+            "setting": "normal",
+            "n_demos": 10,
+            "batch_size": 1,
+            "imagery": "nerf",
+            "pixel_size": 0.003125,
+            "n_rotations": 36,
+            "test_episodes": 100,
+        },
+    },
+}
+# validation success stored with each checkpoint; step 4's round had erred episodes (NaN -> -inf)
+SCORES = {2: 0.5, 4: float("-inf"), 6: 0.5, 8: 0.25}
+
+
+class FakeLightning:
+    """Stands in for `build_cli(["fit", ...])`: writes a checkpoint with its validation score every
+    `every_n_train_steps` up to `max_steps` (or raises KeyboardInterrupt after `interrupt_at`)."""
+
+    def __init__(self):
+        self.calls, self.interrupt_at = [], None
+
+    def __call__(self, args):
+        config = yaml.safe_load(Path(args[args.index("--config") + 1]).read_text())
+        resume = args[args.index("--ckpt_path") + 1] if "--ckpt_path" in args else None
+        self.calls.append(resume)
+        logger = config["trainer"]["logger"]["init_args"]
+        folder = Path(logger["save_dir"], logger["version"], "checkpoints")
+        folder.mkdir(parents=True, exist_ok=True)
+        every = config["trainer"]["callbacks"][1]["init_args"]["every_n_train_steps"]
+        start = torch.load(resume, weights_only=True)["global_step"] if resume else 0
+        for step in range(start + every, config["trainer"]["max_steps"] + 1, every):
+            state = {"monitor": "eval/success_rate", "current_score": torch.tensor(SCORES[step])}
+            checkpoint = {"global_step": step, "callbacks": {"ModelCheckpoint{...}": state}}
+            torch.save(checkpoint, folder / f"step{step:06d}.ckpt")
+            torch.save(checkpoint, folder / "last.ckpt")
+            if step == self.interrupt_at:
+                raise KeyboardInterrupt
+
+
+def fake_test(run_dir, split, episodes, *, only, errors=0, **kwargs):
+    """Stands in for `evaluate_checkpoints`: seeds 1, 3, 5, ... succeed on every other one."""
+    results = [
+        {"seed": 2 * i + 1, "success": i % 2 == 0, "failure": None if i % 2 == 0 else "missed"}
+        for i in range(episodes)
+    ]
+    for result in results[:errors]:
+        result |= {"success": False, "error": "ValueError: broken cache"}
+    record = {"checkpoint": str(only[0]), "world": "0123456789abcdef", **summarize(results)}
+    return [record | {"episode_results": results}]
+
+
+@pytest.fixture
+def fakes(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    lightning = FakeLightning()
+    monkeypatch.setattr(cell_module, "resolve_config", lambda files: CONFIG)
+    monkeypatch.setattr(cell_module, "build_cli", lightning)
+    monkeypatch.setattr(cell_module, "evaluate_checkpoints", fake_test)
+    return lightning
+
+
+def run(**options):
+    arguments = dict(
+        task="block-insertion",
+        method="mira",
+        imagery="oracle",
+        steps=8,
+        val_every=2,
+        val_episodes=4,
+        episodes=3,
+        config_dir=REPO / "configs",
+        device="cpu",
+    )
+    return run_cell(**(arguments | options))
+
+
+def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol(fakes):
+    fakes.interrupt_at = 4
+    with pytest.raises(KeyboardInterrupt):
+        run()
+    cell = Path("results/block-insertion/mira-oracle.json")
+    assert not cell.exists()
+    (runs,) = Path("logs/cells/block-insertion/mira-oracle").iterdir()  # one protocol folder
+    run_dir = runs / "version_0"
+    assert json.loads((run_dir / "fit-segments.json").read_text())[0]["wall_s"] is None
+
+    fakes.interrupt_at = None
+    path, record = run()  # resumes the interrupted fit in its folder
+    assert path == cell and fakes.calls == [None, str(run_dir / "checkpoints" / "last.ckpt")]
+    assert sorted(p.name for p in runs.iterdir()) == ["version_0"]
+    stored = json.loads(cell.read_text())
+    assert stored == json.loads(json.dumps(record))
+    assert stored["protocol"] == {
+        "task": "block-insertion",
+        "setting": "normal",
+        "method": "mira",
+        "imagery": "oracle",
+        "n_demos": 10,
+        "steps": 8,
+        "batch_size": 1,
+        "lr": 1.0e-4,
+        "pixel_size": 0.003125,
+        "n_rotations": 36,
+        "validation_every": 2,
+        "validation_episodes": 4,
+        "test_episodes": 3,
+    }
+    # the best validation round without errors; of two equal ones the later
+    assert stored["checkpoint"] == {
+        "path": str(run_dir / "checkpoints" / "step000006.ckpt"),
+        "step": 6,
+        "validation_success_rate": 0.5,
+        "validation_successes": 2,
+        "validation_episodes": 4,
+    }
+    assert [r["success_rate"] for r in stored["validation"]] == [0.5, None, 0.5, 0.25]
+    assert (stored["episodes"], stored["successes"], stored["errors"]) == (3, 2, 0)
+    assert stored["test_seeds"] == [1, 3, 5]
+    assert stored["ci_low"] < 2 / 3 < stored["ci_high"]
+    assert stored["config"]["trainer"]["max_steps"] == 8
+    assert stored["config"]["data"]["init_args"]["imagery"] == "oracle"
+    assert len(stored["machine"]["fit"]) == 2 and stored["machine"]["test"]["cpu"]
+    assert stored["world"] == "0123456789abcdef" and stored["torch"] == torch.__version__
+    assert stored["train_wall_s"] >= 0 and stored["test_wall_s"] >= 0
+    # the report reads the cell into its own row
+    header, rows = results_table(load_results([Path("results")]))
+    assert rows[2][:2] == ["mira, oracle imagery", "67% (3, 21-94)"]
+
+    assert run() == (cell, None)  # measured: skipped, nothing fitted
+    assert len(fakes.calls) == 2
+    with pytest.raises(CellError, match="steps 8 there, 10 here"):
+        run(steps=10)
+
+    created = stored["created"]
+    time.sleep(1)
+    path, record = run(force=True)  # a fresh fit in a new run folder
+    assert fakes.calls[-1] is None and record["run_dir"].endswith("version_1")
+    assert json.loads(cell.read_text())["created"] != created
+
+
+def test_a_test_with_erred_episodes_writes_no_cell_and_is_tested_again(fakes, monkeypatch, capsys):
+    monkeypatch.setattr(
+        cell_module, "evaluate_checkpoints", lambda *a, **k: fake_test(*a, errors=1, **k)
+    )
+    argv = ["--task", "block-insertion", "--method", "transporter_se2", "--steps", "8"]
+    argv += ["--val-every", "2", "--episodes", "3", "--configs", str(REPO / "configs")]
+    assert cell_module.main(argv) == 1
+    assert "1 of 3 episodes erred" in capsys.readouterr().err
+    assert not Path("results").exists()
+    monkeypatch.setattr(cell_module, "evaluate_checkpoints", fake_test)
+    assert cell_module.main(argv) == 0
+    assert len(fakes.calls) == 1  # the finished fit was kept, only the test ran again
+    assert Path("results/block-insertion/transporter_se2.json").is_file()
+
+
+def test_budget_options_are_checked(fakes, capsys):
+    with pytest.raises(CellError, match="not a multiple of the validation interval 1000"):
+        apply_budget(CONFIG, steps=2500)
+    config = apply_budget(CONFIG, steps=3000, batch_size=4, lr=1e-3, val_every=500)
+    assert config["trainer"]["callbacks"][1]["init_args"]["every_n_train_steps"] == 500
+    assert (config["data"]["init_args"]["batch_size"], config["model"]["init_args"]["lr"]) == (
+        4,
+        1e-3,
+    )
+    assert CONFIG["trainer"]["max_steps"] == 40000  # the input is left alone
+    without = {**CONFIG, "trainer": {"max_steps": 10, "callbacks": []}}
+    with pytest.raises(CellError, match="0 SuccessRateCallback callbacks"):
+        apply_budget(without)
+    with pytest.raises(CellError, match="batch_size must be > 0"):
+        apply_budget(CONFIG, batch_size=0)
+    argv = ["--task", "block-insertion", "--method", "form2fit", "--imagery", "oracle"]
+    assert cell_module.main(argv + ["--configs", str(REPO / "configs")]) == 2
+    assert "--imagery applies to methods that read imagery" in capsys.readouterr().err
+    assert (
+        cell_module.main(["--task", "hanging-disks", "--method", "mira", "--setting", "flat"]) == 2
+    )
+    assert "no config configs/hanging_disks_flat.yaml" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_tiny_cell_end_to_end(tmp_path):
+    """mira with oracle imagery at 6.25 cm pixels: 2 demonstrations, 4 steps, 2 validation and 2
+    test episodes, data generated on the way; then the same command skips the cell."""
+    overlay = tmp_path / "tiny.yaml"
+    overlay.write_text(
+        """trainer: {accelerator: cpu, devices: 1, enable_progress_bar: false, log_every_n_steps: 1}
+model:
+  init_args: {pixel_size: 0.0625, n_rotations: 4, crop_size: 8, width: 8}
+data:
+  init_args: {n_demos: 2, pixel_size: 0.0625, n_rotations: 4, samples_per_epoch: 4}
+"""
+    )
+    argv = [sys.executable, "-m", "nerf_transporter.cli", "run-cell", "--task", "block-insertion"]
+    argv += ["--method", "mira", "--imagery", "oracle", "--steps", "4", "--val-every", "2"]
+    argv += ["--val-episodes", "2", "--episodes", "2", "--eval-workers", "1"]
+    argv += ["--config", str(overlay), "--configs", str(REPO / "configs")]
+    env = {**os.environ, "PYTHONPATH": str(REPO / "src"), "OMP_NUM_THREADS": "1"}
+    result = subprocess.run(argv, cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr[-3000:]
+    cell = json.loads((tmp_path / "results/block-insertion/mira-oracle.json").read_text())
+    assert (cell["episodes"] + cell["errors"], cell["test_seeds"]) == (2, [1, 3])
+    assert cell["checkpoint"]["step"] in (2, 4) and cell["checkpoint"]["validation_episodes"] == 2
+    assert cell["imagery"] == "oracle" and cell["protocol"]["pixel_size"] == 0.0625
+    assert Path(tmp_path, cell["checkpoint"]["path"]).is_file()
+    again = subprocess.run(argv, cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert again.returncode == 0 and "skipped" in again.stdout
