@@ -119,6 +119,9 @@ def test_misspelt_key_gives_a_clear_error(tmp_path, capsys):
 def test_task_configs_build_mira_and_switch_method(config):
     cli = build_cli(["--config", str(config)], run=False)
     assert isinstance(cli.model, Mira)
+    # the closed-loop test callback joins the callbacks the config lists
+    assert [type(c).__name__ for c in cli.trainer.callbacks].count("SuccessRateCallback") == 1
+    assert [c for c in cli.trainer.callbacks if c is cli.closed_loop_test]
     assert cli.model.pixel_size == cli.datamodule.pixel_size
     assert cli.model.n_rotations == cli.datamodule.n_rotations
     assert cli.trainer.max_steps > 0
@@ -342,6 +345,8 @@ def test_gpu_overlays_stack_on_task_and_method_configs(config):
         cli.trainer.max_steps == build_cli(["--config", str(config)], run=False).trainer.max_steps
     )
     assert not [c for c in cli.trainer.callbacks if type(c).__name__ == "SuccessRateCallback"]
+    names = [type(c).__name__ for c in cli.trainer.callbacks]
+    assert names.count("ClosedLoopTestCallback") == 1  # `lightning test` still plays the seeds
 
 
 @pytest.mark.parametrize("name", list(METHODS))

@@ -152,6 +152,10 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
     build on others with `__include__` (`config_include`), the model takes its pixel size and
     rotation bins from the data (`LINKS`).
 
+    Every trainer gets a `ClosedLoopTestCallback` besides the callbacks of the config, so `test`
+    plays the test seeds closed loop (`--video DIR` records them); `cli.closed_loop_test` is that
+    callback, its `record` the results of the test.
+
     Without an explicit `trainer.logger`, a run logs with TensorBoard to its own
     `logs/<task>/<method>/version_N` (claimed atomically) with checkpoints in its `checkpoints/`;
     `fit --ckpt_path last` resumes the latest run of that task and method in its folder, and
@@ -165,9 +169,11 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
     from lightning.pytorch.loggers import TensorBoardLogger
 
     from nerf_transporter import config_include
+    from nerf_transporter.evaluation.testing import ClosedLoopTestCallback
     from nerf_transporter.methods import Method
 
     quiet_lightning()
+    test_callback = ClosedLoopTestCallback()
 
     class RunConfigCallback(SaveConfigCallback):
         """Saves the resolved config in the run folder as `config.yaml`, or, where a resumed fit or
@@ -180,6 +186,8 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
             super().setup(trainer, pl_module, stage)
 
     class NerfTransporterCLI(LightningCLI):
+        closed_loop_test = test_callback  # in every trainer; its `record` after `test`
+
         def add_arguments_to_parser(self, parser: LightningArgumentParser) -> None:
             """The model's pixel size and rotation bins are the data's (LINKS)."""
             for source, target in LINKS:
@@ -200,7 +208,7 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
             return parser
 
         def before_test(self) -> None:
-            self.model.test_video_dir = self._get(self.config, "video")
+            self.closed_loop_test.video_dir = self._get(self.config, "video")
 
         def instantiate_trainer(self, **kwargs: Any) -> pl.Trainer:
             logger = self._get(self.config_init, "trainer", default={}).get("logger")
@@ -241,6 +249,7 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
         parser_kwargs={"parser_mode": config_include.register()},
         save_config_callback=RunConfigCallback,
         save_config_kwargs={"overwrite": False},
+        trainer_defaults={"callbacks": [test_callback]},  # appended to a config's callbacks
         args=args,
         run=run,
     )
@@ -316,7 +325,7 @@ def lightning_main(args: list[str] | None = None) -> int:
         return 2
     if cli.subcommand == "fit" and cli.trainer.is_global_zero:
         print(fit_summary(cli.trainer))
-    record = getattr(cli.model, "test_record", None)
+    record = cli.closed_loop_test.record
     if record is not None and record["errors"]:
         print(f"lightning test: {erred_seeds_line(record)}", file=sys.stderr)
         return 1

@@ -39,6 +39,7 @@ from nerf_transporter.data.labels import (
 )
 from nerf_transporter.data.observation import INPUT_KINDS
 from nerf_transporter.data.preprocess import network_input
+from nerf_transporter.data.seeds import seed_loader
 from nerf_transporter.sim import TASKS, cameras
 
 FILES_PER_KIND = {"imagery": ["imagery"], "heightmap": ["rgbd"], "state": []}
@@ -418,6 +419,4 @@ class RavensDataModule(pl.LightningDataModule):
 
     def test_dataloader(self) -> DataLoader:
         """Seeds of the closed-loop test episodes (`lightning test`, see evaluation/testing.py)."""
-        from nerf_transporter.evaluation.testing import seed_loader
-
         return seed_loader("test", self.test_episodes)

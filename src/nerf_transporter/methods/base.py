@@ -12,7 +12,6 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from nerf_transporter import geometry as g
 from nerf_transporter.data.preprocess import COLOUR_MEAN, COLOUR_STD, network_input
 from nerf_transporter.drawing import heatmap_picture
-from nerf_transporter.evaluation.testing import ClosedLoopTest
 from nerf_transporter.models import Attention, Transport, pixel_cross_entropy
 from nerf_transporter.models.transport import placement_cross_entropy, unravel_argmax
 
@@ -24,12 +23,14 @@ Action = dict[str, g.Pose]
 DEFAULT_WIDTH = 16
 
 
-class Method(ClosedLoopTest, L.LightningModule):
+class Method(L.LightningModule):
     """Base class of the methods; LightningCLI's `model` is a subclass of it.
 
     Subclasses set `name` (the log folder) and `input_kind` (what the DataModule feeds them), and
     implement `losses(batch)` (a dict with the total under "loss"), `act(observation)` and, for
     image-based methods, `heatmaps(batch)` (affordance maps of the first sample, logged as images).
+    A method is judged from outside: `trainer.test` batches are episode seeds, which a callback
+    plays closed loop (`lightning test` adds it).
     """
 
     name: ClassVar[str]
@@ -77,6 +78,20 @@ class Method(ClosedLoopTest, L.LightningModule):
 
     def validation_step(self, batch: Batch, batch_idx: int) -> None:
         self._log_losses("val", self.losses(batch), batch, sync_dist=True)
+
+    def on_test_start(self) -> None:
+        """Refuse a test that would measure nothing: no callback plays the test seeds."""
+        if not any(
+            getattr(callback, "plays_test_seeds", False) for callback in self.trainer.callbacks
+        ):
+            raise RuntimeError(
+                "trainer.test: the test batches are episode seeds and no callback plays them; add "
+                "nerf_transporter.evaluation.testing.ClosedLoopTestCallback() to the Trainer's "
+                "callbacks (`lightning test` adds it)"
+            )
+
+    def test_step(self, batch: torch.Tensor, batch_idx: int) -> None:
+        """Nothing: a test batch holds episode seeds, played by the closed-loop test callback."""
 
     def configure_optimizers(self) -> torch.optim.Optimizer:
         return torch.optim.Adam(self.parameters(), lr=self.lr)
