@@ -17,7 +17,7 @@ from torch.utils.data import DataLoader
 
 from nerf_transporter.cli import build_cli, claim_version, lightning_main, main
 from nerf_transporter.methods import METHODS, Mira, TransporterSE2
-from tests.helpers.synthetic import SIZE, synthetic_batch, synthetic_observation
+from tests.helpers.synthetic import SIZE, STATE_DIM, synthetic_batch, synthetic_observation
 
 REPO = Path(__file__).resolve().parents[1]
 TASK_CONFIGS = sorted((REPO / "configs").glob("*.yaml")) + sorted(
@@ -39,6 +39,7 @@ class SyntheticDataModule(pl.LightningDataModule):
         self.task, self.setting = task, setting
         self.batch_size, self.n_samples = batch_size, n_samples
         self.pixel_size, self.n_rotations = SIZE["pixel_size"], SIZE["n_rotations"]
+        self.state_dim = STATE_DIM
 
     def setup(self, stage: str) -> None:
         batch = synthetic_batch(self.trainer.lightning_module.input_kind, self.n_samples)

@@ -40,7 +40,7 @@ from nerf_transporter.data.labels import (
 from nerf_transporter.data.observation import INPUT_KINDS
 from nerf_transporter.data.preprocess import network_input
 from nerf_transporter.data.seeds import seed_loader
-from nerf_transporter.sim import cameras
+from nerf_transporter.sim import TASKS, cameras
 
 FILES_PER_KIND = {"imagery": ["imagery"], "heightmap": ["rgbd"], "state": []}
 
@@ -294,6 +294,11 @@ class RavensDataModule(pl.LightningDataModule):
         self.val_dataset: DemoDataset | None = None
 
     # -- configuration -------------------------------------------------------------------------
+
+    @property
+    def state_dim(self) -> int:
+        """Length of the task's state vector (`gt_state_mlp`'s input), known without loading data."""
+        return TASKS[self.task].state_dim()
 
     def resolve_input_kind(self) -> str:
         trainer = getattr(self, "trainer", None)
