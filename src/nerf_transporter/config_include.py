@@ -1,7 +1,7 @@
 """Config files that compose: a top-level `__include__` names the files a config builds on.
 
-`lightning fit --config configs/block_insertion.yaml` reads `configs/base/full.yaml` through the
-task file's `__include__: base/full.yaml`, then the task file's own keys over it. jsonargparse 4
+`lightning fit --config configs/block_insertion.yaml` reads `configs/common/base.yaml` through the
+task file's `__include__: common/base.yaml`, then the task file's own keys over it. jsonargparse 4
 applies a `config:` key inside a config file, but the including file's `model:` or `data:` then
 replaces the included one instead of adding to it; its v5 brings an `__include__` key that merges.
 Until then this parser mode (`PARSER_MODE`, YAML with OmegaConf's `${...}` interpolation as
