@@ -43,3 +43,10 @@ def test_a_name_taken_is_never_replaced(tmp_path):
         write_json(second, {"run": 4}, overwrite=False)
     assert json.loads(second.read_text()) == {"run": 2}
     assert len(list(tmp_path.iterdir())) == 3
+
+
+def test_written_files_get_the_mode_of_a_plain_open(tmp_path):
+    plain = tmp_path / "plain.txt"
+    plain.write_text("x")
+    written = write_text(tmp_path / "atomic.txt", "x")
+    assert written.stat().st_mode == plain.stat().st_mode

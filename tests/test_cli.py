@@ -17,7 +17,7 @@ from torch.utils.data import DataLoader
 
 from nerf_transporter.cli import build_cli, claim_version, lightning_main, main
 from nerf_transporter.methods import METHODS, Mira, TransporterSE2
-from tests.helpers.synthetic import SIZE, synthetic_batch, synthetic_observation
+from tests.helpers.synthetic import SIZE, STATE_DIM, synthetic_batch, synthetic_observation
 
 REPO = Path(__file__).resolve().parents[1]
 TASK_CONFIGS = sorted((REPO / "configs").glob("*.yaml")) + sorted(
@@ -39,6 +39,7 @@ class SyntheticDataModule(pl.LightningDataModule):
         self.task, self.setting = task, setting
         self.batch_size, self.n_samples = batch_size, n_samples
         self.pixel_size, self.n_rotations = SIZE["pixel_size"], SIZE["n_rotations"]
+        self.state_dim = STATE_DIM
 
     def setup(self, stage: str) -> None:
         batch = synthetic_batch(self.trainer.lightning_module.input_kind, self.n_samples)
@@ -118,6 +119,9 @@ def test_misspelt_key_gives_a_clear_error(tmp_path, capsys):
 def test_task_configs_build_mira_and_switch_method(config):
     cli = build_cli(["--config", str(config)], run=False)
     assert isinstance(cli.model, Mira)
+    # the closed-loop test callback joins the callbacks the config lists
+    assert [type(c).__name__ for c in cli.trainer.callbacks].count("SuccessRateCallback") == 1
+    assert [c for c in cli.trainer.callbacks if c is cli.closed_loop_test]
     assert cli.model.pixel_size == cli.datamodule.pixel_size
     assert cli.model.n_rotations == cli.datamodule.n_rotations
     assert cli.trainer.max_steps > 0
@@ -341,6 +345,8 @@ def test_gpu_overlays_stack_on_task_and_method_configs(config):
         cli.trainer.max_steps == build_cli(["--config", str(config)], run=False).trainer.max_steps
     )
     assert not [c for c in cli.trainer.callbacks if type(c).__name__ == "SuccessRateCallback"]
+    names = [type(c).__name__ for c in cli.trainer.callbacks]
+    assert names.count("ClosedLoopTestCallback") == 1  # `lightning test` still plays the seeds
 
 
 @pytest.mark.parametrize("name", list(METHODS))

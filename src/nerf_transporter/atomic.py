@@ -13,6 +13,16 @@ from pathlib import Path
 from typing import IO, Any
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+# files get the mode a plain `open` would give them (mkstemp's temporary files are private: 0600)
+FILE_MODE = 0o666 & ~_umask()
+
+
 def write_file(
     path: str | os.PathLike, write: Callable[[IO[bytes]], object], *, overwrite: bool = True
 ) -> Path:
@@ -25,6 +35,7 @@ def write_file(
     try:
         with os.fdopen(handle, "wb") as file:
             write(file)
+        os.chmod(temporary, FILE_MODE)
         if overwrite:
             os.replace(temporary, path)
         else:

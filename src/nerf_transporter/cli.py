@@ -47,6 +47,14 @@ TOOLS: dict[str, tuple[str, str]] = {
 }
 
 
+# (source, target) of LightningCLI's argument links: what the model must share with the data is
+# stated once, under `data`; a DataModule without the source leaves the model's value as configured.
+# (gt_state_mlp's state length needs no link: it asks the trainer's DataModule, `state_dim`.)
+LINKS: tuple[tuple[str, str], ...] = (
+    ("data.init_args.pixel_size", "model.init_args.pixel_size"),
+    ("data.init_args.n_rotations", "model.init_args.n_rotations"),
+)
+
 LOG_ROOT = Path("logs")
 VERSION_FOLDER = re.compile(r"version_(\d+)")
 
@@ -148,7 +156,13 @@ def run_folder(checkpoint: str) -> Path | None:
 
 
 def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
-    """LightningCLI (omegaconf parser mode): `model` is any `Method`, `data` any LightningDataModule.
+    """LightningCLI: `model` is any `Method`, `data` any LightningDataModule; config files may
+    build on others with `__include__` (`config_include`), the model takes its pixel size and
+    rotation bins from the data (`LINKS`).
+
+    Every trainer gets a `ClosedLoopTestCallback` besides the callbacks of the config, so `test`
+    plays the test seeds closed loop (`--video DIR` records them); `cli.closed_loop_test` is that
+    callback, its `record` the results of the test.
 
     Without an explicit `trainer.logger`, a run logs with TensorBoard to its own
     `logs/<task>/<method>/version_N` (claimed atomically) with checkpoints in its `checkpoints/`;
@@ -159,12 +173,15 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
     """
     import lightning.pytorch as pl
     from lightning.fabric.utilities.rank_zero import rank_zero_only
-    from lightning.pytorch.cli import LightningCLI, SaveConfigCallback
+    from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
     from lightning.pytorch.loggers import TensorBoardLogger
 
+    from nerf_transporter import config_include
+    from nerf_transporter.evaluation.testing import ClosedLoopTestCallback
     from nerf_transporter.methods import Method
 
     quiet_lightning()
+    test_callback = ClosedLoopTestCallback()
 
     class RunConfigCallback(SaveConfigCallback):
         """Saves the resolved config in the run folder as `config.yaml`, or, where a resumed fit or
@@ -177,6 +194,13 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
             super().setup(trainer, pl_module, stage)
 
     class NerfTransporterCLI(LightningCLI):
+        closed_loop_test = test_callback  # in every trainer; its `record` after `test`
+
+        def add_arguments_to_parser(self, parser: LightningArgumentParser) -> None:
+            """The model's pixel size and rotation bins are the data's (LINKS)."""
+            for source, target in LINKS:
+                parser.link_arguments(source, target)
+
         def _prepare_subcommand_parser(self, klass: type, subcommand: str, **kwargs: Any) -> Any:
             parser = super()._prepare_subcommand_parser(klass, subcommand, **kwargs)
             if "weights_only" in self._subcommand_method_arguments[subcommand]:
@@ -192,7 +216,7 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
             return parser
 
         def before_test(self) -> None:
-            self.model.test_video_dir = self._get(self.config, "video")
+            self.closed_loop_test.video_dir = self._get(self.config, "video")
 
         def instantiate_trainer(self, **kwargs: Any) -> pl.Trainer:
             logger = self._get(self.config_init, "trainer", default={}).get("logger")
@@ -230,9 +254,10 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
         pl.LightningDataModule,
         subclass_mode_model=True,
         subclass_mode_data=True,
-        parser_kwargs={"parser_mode": "omegaconf"},
+        parser_kwargs={"parser_mode": config_include.register()},
         save_config_callback=RunConfigCallback,
         save_config_kwargs={"overwrite": False},
+        trainer_defaults={"callbacks": [test_callback]},  # appended to a config's callbacks
         args=args,
         run=run,
     )
@@ -308,7 +333,7 @@ def lightning_main(args: list[str] | None = None) -> int:
         return 2
     if cli.subcommand == "fit" and cli.trainer.is_global_zero:
         print(fit_summary(cli.trainer))
-    record = getattr(cli.model, "test_record", None)
+    record = cli.closed_loop_test.record
     if record is not None and record["errors"]:
         print(f"lightning test: {erred_seeds_line(record)}", file=sys.stderr)
         return 1

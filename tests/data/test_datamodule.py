@@ -75,6 +75,7 @@ def test_heightmap_and_state_batches(fake_world, tmp_path):
         and batch["pick"].shape == (2, 7)
         and batch["place"].shape == (2, 7)
     )
+    assert module.state_dim == 14  # known without loading a batch
 
 
 def test_batches_are_deterministic_and_independent_of_workers(fake_world, tmp_path):

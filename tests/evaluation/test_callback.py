@@ -15,17 +15,18 @@ from tensorboard.plugins.hparams import plugin_data_pb2
 from torch.utils.data import DataLoader
 
 from nerf_transporter.data.generate import GenerationConfig
+from nerf_transporter.data.seeds import seed_loader
 from nerf_transporter.evaluation import callback as callback_module
 from nerf_transporter.evaluation.callback import SuccessRateCallback
 from nerf_transporter.evaluation.metrics import wilson_interval
 from nerf_transporter.evaluation.report import main as report_main
 from nerf_transporter.evaluation.rollout import EpisodeResult
-from nerf_transporter.evaluation.testing import ClosedLoopTest, seed_loader
+from nerf_transporter.evaluation.testing import ClosedLoopTestCallback
 
 UPRIGHT = np.array([0.0, 0.0, 0.0, 1.0])
 
 
-class TinyStateMethod(ClosedLoopTest, pl.LightningModule):
+class TinyStateMethod(pl.LightningModule):
     """A one-parameter state policy: places wherever its bias says."""
 
     name = "tiny"
@@ -38,6 +39,9 @@ class TinyStateMethod(ClosedLoopTest, pl.LightningModule):
 
     def training_step(self, batch, batch_idx):
         return (self.bias - 0.1).pow(2).sum() + 0 * batch.sum()
+
+    def test_step(self, batch, batch_idx):
+        """Nothing: the test seeds are played by ClosedLoopTestCallback."""
 
     def configure_optimizers(self):
         return torch.optim.SGD(self.parameters(), lr=0.1)
@@ -146,7 +150,10 @@ def test_hparams_tab_compares_methods_by_validation_success(fitted):
 def test_lightning_test_writes_results_beside_the_checkpoint(fitted, tmp_path, capsys):
     trainer, model, checkpoint = fitted
     ckpt = checkpoint.best_model_path
-    tester = pl.Trainer(logger=False, enable_progress_bar=False, accelerator="cpu")
+    test_callback = ClosedLoopTestCallback()
+    tester = pl.Trainer(
+        logger=False, enable_progress_bar=False, accelerator="cpu", callbacks=[test_callback]
+    )
     # the two test episodes run in two worker processes
     metrics = tester.test(model, datamodule=TinyData(test_workers=2), ckpt_path=ckpt)[0]
     # one file per checkpoint; tested in another setting than trained in: the name says which
@@ -167,6 +174,7 @@ def test_lightning_test_writes_results_beside_the_checkpoint(fitted, tmp_path, c
     assert (results["ci_low"], results["ci_high"]) == pytest.approx(wilson_interval(successes, 2))
     assert metrics["test/episodes"] == 2
     assert metrics["test/success_rate"] == pytest.approx(successes / 2)
+    assert test_callback.record == results  # what the CLI reads for its exit status
 
     capsys.readouterr()
     assert report_main([str(tmp_path)]) == 0
@@ -180,7 +188,12 @@ def test_no_results_file_is_replaced(fitted, tmp_path):
     second = first.with_name("step4-success0.00.ckpt")
     second.write_bytes(first.read_bytes())
     for ckpt in (first, second, first):
-        tester = pl.Trainer(logger=False, enable_progress_bar=False, accelerator="cpu")
+        tester = pl.Trainer(
+            logger=False,
+            enable_progress_bar=False,
+            accelerator="cpu",
+            callbacks=[ClosedLoopTestCallback()],
+        )
         tester.test(model, datamodule=TinyData(), ckpt_path=str(ckpt))
     names = sorted(path.name for path in first.parent.glob("results*.json"))
     assert names == [

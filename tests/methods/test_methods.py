@@ -1,8 +1,10 @@
+import lightning.pytorch as pl
 import numpy as np
 import pytest
 import torch
 
 from nerf_transporter import geometry as g
+from nerf_transporter.data.seeds import seed_loader
 from nerf_transporter.methods import METHODS, Method
 from tests.helpers.synthetic import (
     PIXEL_SIZE,
@@ -89,6 +91,12 @@ def test_act_rejects_wrong_image_size():
     observation["heightmap"]["height"] = observation["heightmap"]["height"][:-1]
     with pytest.raises(ValueError, match="pixel_size"):
         method.act(observation)
+
+
+def test_a_test_without_a_callback_to_play_the_seeds_is_refused():
+    trainer = pl.Trainer(logger=False, enable_progress_bar=False, accelerator="cpu")
+    with pytest.raises(RuntimeError, match="no callback plays them"):
+        trainer.test(make_method("mira"), dataloaders=seed_loader("test", 1))
 
 
 def test_hyperparameters_are_plain_values():

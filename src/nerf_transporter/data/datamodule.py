@@ -39,7 +39,8 @@ from nerf_transporter.data.labels import (
 )
 from nerf_transporter.data.observation import INPUT_KINDS
 from nerf_transporter.data.preprocess import network_input
-from nerf_transporter.sim import cameras
+from nerf_transporter.data.seeds import seed_loader
+from nerf_transporter.sim import TASKS, cameras
 
 FILES_PER_KIND = {"imagery": ["imagery"], "heightmap": ["rgbd"], "state": []}
 
@@ -294,6 +295,11 @@ class RavensDataModule(pl.LightningDataModule):
 
     # -- configuration -------------------------------------------------------------------------
 
+    @property
+    def state_dim(self) -> int:
+        """Length of the task's state vector (`gt_state_mlp`'s input), known without loading data."""
+        return TASKS[self.task].state_dim()
+
     def resolve_input_kind(self) -> str:
         trainer = getattr(self, "trainer", None)
         module = getattr(trainer, "lightning_module", None) if trainer is not None else None
@@ -413,6 +419,4 @@ class RavensDataModule(pl.LightningDataModule):
 
     def test_dataloader(self) -> DataLoader:
         """Seeds of the closed-loop test episodes (`lightning test`, see evaluation/testing.py)."""
-        from nerf_transporter.evaluation.testing import seed_loader
-
         return seed_loader("test", self.test_episodes)

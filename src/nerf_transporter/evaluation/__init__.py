@@ -5,7 +5,8 @@
 - `cache`: evaluation imagery cached on disk by task, setting, seed and imagery config;
 - `metrics`: the `SuccessRate` torchmetrics metric and the 95% Wilson interval;
 - `callback`: `SuccessRateCallback`, validation success during training;
-- `testing`: `lightning test` runs test episodes and writes results.json beside the checkpoint;
+- `testing`: `ClosedLoopTestCallback` (the CLI adds it): `lightning test` plays the test seeds
+  and writes `results-<checkpoint>.json` beside the checkpoint;
 - `checkpoints`: `nerf-transporter evaluate-checkpoints`, validation success of every checkpoint;
 - `report`: `nerf-transporter report`, the results table.
 """

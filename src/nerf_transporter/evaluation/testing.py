@@ -1,14 +1,25 @@
-"""Closed-loop `trainer.test` (`lightning test --config ... --ckpt_path ...`).
+"""Closed-loop `trainer.test` (`lightning test --config ... --ckpt_path ...`): `ClosedLoopTestCallback`.
 
-The DataModule's test dataloader yields episode seeds (`seed_loader`; under DDP each process gets
-its share); the methods' base class mixes in `ClosedLoopTest`, whose `test_step` collects them and
-whose epoch end runs them with an `Evaluator` in the DataModule's `test_workers` worker processes
-(default: one per core available to this process), pools the outcomes (across DDP processes), logs `test/success_rate`, its 95% Wilson interval, the
-episode count and the erred episodes (`test/errors`, not counted in the rate), and writes
-`results-<checkpoint>.json` beside the checkpoint (`results-<checkpoint>-<setting>.json` when the
-DataModule's `test_setting` differs from its training `setting`). A results file is never
-replaced: testing the same checkpoint again writes `...-2.json`, and `nerf-transporter report`
-takes the newest. `lightning test` exits non-zero when any episode erred.
+The DataModule's test dataloader yields episode seeds (`data.seeds.seed_loader`; under DDP each
+process gets its share). `ClosedLoopTestCallback` collects them as the test loop hands them out
+and at the end of the epoch runs them with an `Evaluator` in the DataModule's `test_workers` worker
+processes (default: one per core available to this process), pools the outcomes (across DDP
+processes), logs `test/success_rate`, its 95% Wilson interval, the episode count and the erred
+episodes (`test/errors`, not counted in the rate), and writes `results-<checkpoint>.json` beside
+the checkpoint (`results-<checkpoint>-<setting>.json` when the DataModule's `test_setting` differs
+from its training `setting`). A results file is never replaced: testing the same checkpoint again
+writes `...-2.json`, and `nerf-transporter report` takes the newest. `lightning test` exits
+non-zero when any episode erred. The CLI adds the callback to every trainer it builds (also when
+a config lists its own callbacks); a Trainer built by hand needs it in its `callbacks`.
+
+Why a callback around Lightning's own test loop: judging a policy is evaluation's business, so the
+methods (`methods/base.py`) know nothing of it and import nothing from here. Lightning insists on
+a `test_step` to run `trainer.test`; `Method.test_step` does nothing, and the callback reads the
+seeds from `on_test_batch_end` and plays them all in `on_test_epoch_end`, so that the worker
+processes take episodes as they become free. The test loop still does what it does well: it loads
+the checkpoint, shares the seeds out under DDP, shows the progress bar and returns the logged
+`test/*` figures from `trainer.test`. A custom loop (`trainer.test_loop` replaced) would redo all
+of that for no gain.
 """
 
 from __future__ import annotations
@@ -22,14 +33,14 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from torch.utils.data import DataLoader, Dataset
+from lightning.pytorch import LightningModule, Trainer
+from lightning.pytorch.callbacks import Callback
 
 from nerf_transporter.atomic import write_new_json
 from nerf_transporter.evaluation.metrics import summarize
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.sim.fingerprint import world_fingerprint
-from nerf_transporter.splits import split_seed
 
 
 def results_stem(
@@ -40,28 +51,6 @@ def results_stem(
     name = Path(checkpoint).stem if checkpoint else f"step{global_step}"
     stem = f"results-{name}"
     return stem if setting == training_setting else f"{stem}-{setting}"
-
-
-class SeedDataset(Dataset):
-    """The first `episodes` seeds of a split (`splits.split_seed`)."""
-
-    def __init__(self, split: str, episodes: int) -> None:
-        if episodes < 1:
-            raise ValueError(f"episodes must be >= 1, got {episodes}")
-        split_seed(split, episodes - 1)  # validates the split name and the range
-        self.split = split
-        self.episodes = episodes
-
-    def __len__(self) -> int:
-        return self.episodes
-
-    def __getitem__(self, index: int) -> int:
-        return split_seed(self.split, index)
-
-
-def seed_loader(split: str, episodes: int) -> DataLoader:
-    """One seed per batch, in order (the test progress bar then counts episodes)."""
-    return DataLoader(SeedDataset(split, episodes), batch_size=1, shuffle=False)
 
 
 def results_record(
@@ -126,73 +115,82 @@ def erred_seeds_line(record: dict[str, Any]) -> str:
     )
 
 
-class ClosedLoopTest:
-    """Mixin for the methods' LightningModule base class: `trainer.test` runs closed-loop episodes.
+class ClosedLoopTestCallback(Callback):
+    """`trainer.test` plays the test seeds closed loop and writes the results file.
 
-    With `test_video_dir` set (`lightning test ... --video DIR`), every episode is also recorded
-    there as an mp4. After a test, `test_record` holds the results payload (for the CLI's exit
-    status)."""
+    With `video_dir` set (`lightning test ... --video DIR`), every episode is also recorded there
+    as an mp4. After a test, `record` holds the results payload (for the CLI's exit status)."""
 
-    test_record: dict[str, Any] | None = None
-    test_video_dir: str | None = None
+    plays_test_seeds = True  # what `Method.on_test_start` looks for among the trainer's callbacks
 
-    def on_test_epoch_start(self) -> None:
-        self._test_seeds: list[int] = []
-        self._test_start = time.perf_counter()
+    def __init__(self, video_dir: str | None = None) -> None:
+        self.video_dir = video_dir
+        self.record: dict[str, Any] | None = None
+        self._seeds: list[int] = []
+        self._start = 0.0
 
-    def test_step(self, batch: torch.Tensor, batch_idx: int) -> None:
+    def on_test_epoch_start(self, trainer: Trainer, pl_module: LightningModule) -> None:
+        self.record = None
+        self._seeds = []
+        self._start = time.perf_counter()
+
+    def on_test_batch_end(
+        self,
+        trainer: Trainer,
+        pl_module: LightningModule,
+        outputs: Any,
+        batch: Any,
+        batch_idx: int,
+        dataloader_idx: int = 0,
+    ) -> None:
         """Collect this process's seeds; they run together at the end of the epoch, so that the
         worker processes share them out as they become free."""
-        self._test_seeds.extend(int(seed) for seed in torch.as_tensor(batch).flatten().tolist())
+        self._seeds.extend(int(seed) for seed in torch.as_tensor(batch).flatten().tolist())
 
-    def on_test_epoch_end(self) -> None:
-        datamodule = self.trainer.datamodule
+    def on_test_epoch_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
+        datamodule = trainer.datamodule
         spec = EvaluationSpec.from_datamodule(datamodule, split="test")
-        seeds, start = self._test_seeds, self._test_start
         workers, threads = share_cores(
-            len(seeds), getattr(datamodule, "test_workers", None), self.trainer.num_devices
+            len(self._seeds), getattr(datamodule, "test_workers", None), trainer.num_devices
         )
         with Evaluator(spec) as evaluator:
             episodes = evaluator.run(
-                self,
-                seeds,
-                progress=self.trainer.is_global_zero,
+                pl_module,
+                self._seeds,
+                progress=trainer.is_global_zero,
                 desc="test episodes",
                 workers=workers,
                 threads=threads,
-                video_dir=self.test_video_dir,
+                video_dir=self.video_dir,
             )
         results = [episode.to_json() for episode in episodes]
-        if self.trainer.world_size > 1:
-            results = gather_json(self, results)
-        checkpoint = self.trainer.ckpt_path
+        if trainer.world_size > 1:
+            results = gather_json(pl_module, results)
+        checkpoint = trainer.ckpt_path
         if not checkpoint:
-            step = self.global_step
+            step = trainer.global_step
         elif Path(checkpoint).is_file():
             step = checkpoint_step(checkpoint)
         else:
             step = None  # a checkpoint behind a URL: Lightning read it, its step is not at hand
         record = results_record(
             results,
-            method=self,
+            method=pl_module,
             spec=spec,
             split="test",
             checkpoint=str(checkpoint) if checkpoint else None,
             global_step=step,
-            wall_s=time.perf_counter() - start,
+            wall_s=time.perf_counter() - self._start,
         )
         for name in ("success_rate", "ci_low", "ci_high", "episodes", "errors"):
             if record[name] is not None:  # rounded for Lightning's table; the file keeps all digits
-                self.log(f"test/{name}", round(float(record[name]), 4))
-        self.test_record = record
+                pl_module.log(f"test/{name}", round(float(record[name]), 4))
+        self.record = record
         # trainer.log_dir is a collective call under DDP: every process asks for it
-        directory = Path(checkpoint).parent if checkpoint else Path(self.trainer.log_dir or ".")
-        if self.trainer.is_global_zero:
+        directory = Path(checkpoint).parent if checkpoint else Path(trainer.log_dir or ".")
+        if trainer.is_global_zero:
             stem = results_stem(
-                record["checkpoint"],
-                record["global_step"],
-                record["setting"],
-                self.trainer.datamodule.setting,
+                record["checkpoint"], record["global_step"], record["setting"], datamodule.setting
             )
             path = write_new_json(directory, stem, record)
             print(f"closed-loop test results written to {path}")

@@ -52,12 +52,26 @@ class PolicyRecipe:
         return policy.to(self.device).eval()
 
 
+def accepted_keywords(cls: type) -> set[str] | None:
+    """The keyword arguments `cls(...)` takes, following a `**kwargs` that an `__init__` passes
+    on to the next class of the chain (as the methods do); None when the chain takes any."""
+    names: set[str] = set()
+    for klass in cls.__mro__:
+        if "__init__" not in vars(klass):
+            continue
+        parameters = list(inspect.signature(vars(klass)["__init__"]).parameters.values())[1:]
+        names |= {p.name for p in parameters if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+        if not any(p.kind is p.VAR_KEYWORD for p in parameters):
+            return names
+    return None
+
+
 def policy_factory(policy: Any) -> Callable[[], Any]:
     """A picklable callable that builds an untrained copy of `policy`.
 
     A LightningModule is rebuilt from its class and its hyper-parameters (`save_hyperparameters`;
-    the keys its `__init__` does not take, such as LightningCLI's `_class_path`, are left out, as
-    `load_from_checkpoint` does). Any other policy provides `worker_factory()`."""
+    the keys its `__init__` chain does not take, such as LightningCLI's `_class_path`, are left
+    out). Any other policy provides `worker_factory()`."""
     if hasattr(policy, "worker_factory"):
         return policy.worker_factory()
     hparams = getattr(policy, "hparams", None)
@@ -68,9 +82,8 @@ def policy_factory(policy: Any) -> Callable[[], Any]:
             "evaluate it with workers=1"
         )
     cls = type(policy)
-    parameters = inspect.signature(cls.__init__).parameters
-    takes_any = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values())
-    arguments = {k: v for k, v in hparams.items() if takes_any or k in parameters}
+    accepted = accepted_keywords(cls)
+    arguments = {k: v for k, v in hparams.items() if accepted is None or k in accepted}
     return functools.partial(cls, **arguments)
 
 

@@ -12,7 +12,6 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from nerf_transporter import geometry as g
 from nerf_transporter.data.preprocess import COLOUR_MEAN, COLOUR_STD, network_input
 from nerf_transporter.drawing import heatmap_picture
-from nerf_transporter.evaluation.testing import ClosedLoopTest
 from nerf_transporter.models import Attention, Transport, pixel_cross_entropy
 from nerf_transporter.models.transport import placement_cross_entropy, unravel_argmax
 
@@ -24,12 +23,14 @@ Action = dict[str, g.Pose]
 DEFAULT_WIDTH = 16
 
 
-class Method(ClosedLoopTest, L.LightningModule):
+class Method(L.LightningModule):
     """Base class of the methods; LightningCLI's `model` is a subclass of it.
 
     Subclasses set `name` (the log folder) and `input_kind` (what the DataModule feeds them), and
     implement `losses(batch)` (a dict with the total under "loss"), `act(observation)` and, for
     image-based methods, `heatmaps(batch)` (affordance maps of the first sample, logged as images).
+    A method is judged from outside: `trainer.test` batches are episode seeds, which a callback
+    plays closed loop (`lightning test` adds it).
     """
 
     name: ClassVar[str]
@@ -41,6 +42,9 @@ class Method(ClosedLoopTest, L.LightningModule):
             raise ValueError(f"lr must be positive, got {lr}")
         self.lr = lr
         self.log_images_every_n_steps = log_images_every_n_steps
+        # Lightning collects the arguments of every `__init__` frame of the subclass chain that
+        # called this one (each subclass declares its own and passes the rest on as **kwargs)
+        self.save_hyperparameters()
 
     def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
         raise NotImplementedError
@@ -53,7 +57,8 @@ class Method(ClosedLoopTest, L.LightningModule):
         raise NotImplementedError
 
     def setup(self, stage: str) -> None:
-        """Refuse a DataModule whose pixel size or rotation bins differ from the model's."""
+        """Refuse a DataModule whose pixel size or rotation bins differ from the model's (both
+        built in Python: `lightning fit` gives the model the data's, see cli.LINKS)."""
         datamodule = getattr(self.trainer, "datamodule", None)
         for key in ("pixel_size", "n_rotations"):
             ours, theirs = getattr(self, key, None), getattr(datamodule, key, None)
@@ -73,6 +78,20 @@ class Method(ClosedLoopTest, L.LightningModule):
 
     def validation_step(self, batch: Batch, batch_idx: int) -> None:
         self._log_losses("val", self.losses(batch), batch, sync_dist=True)
+
+    def on_test_start(self) -> None:
+        """Refuse a test that would measure nothing: no callback plays the test seeds."""
+        if not any(
+            getattr(callback, "plays_test_seeds", False) for callback in self.trainer.callbacks
+        ):
+            raise RuntimeError(
+                "trainer.test: the test batches are episode seeds and no callback plays them; add "
+                "nerf_transporter.evaluation.testing.ClosedLoopTestCallback() to the Trainer's "
+                "callbacks (`lightning test` adds it)"
+            )
+
+    def test_step(self, batch: torch.Tensor, batch_idx: int) -> None:
+        """Nothing: a test batch holds episode seeds, played by the closed-loop test callback."""
 
     def configure_optimizers(self) -> torch.optim.Optimizer:
         return torch.optim.Adam(self.parameters(), lr=self.lr)
@@ -149,25 +168,48 @@ def heightmap_tensors(
     return network_input(colour, height)[None].to(device), height
 
 
-class AttentionTransportMethod(Method):
-    """Shared part of `mira`, `transporter_se2` and `transporter_se3`: attention + transport."""
+class ImageMethod(Method):
+    """A method on top-down images: their pixel size, the rotation bins, crop size and FCN width.
+
+    `lightning fit` takes `pixel_size` and `n_rotations` from the data (`cli.py` links them).
+    """
 
     def __init__(
         self,
-        lr: float = 1e-4,
-        log_images_every_n_steps: int = 250,
         pixel_size: float = g.PIXEL_SIZE,
         n_rotations: int = g.N_ROTATIONS,
         crop_size: int = 64,
         width: int = DEFAULT_WIDTH,
-        feature_channels: int = 3,
+        **kwargs: Any,
     ) -> None:
-        super().__init__(lr=lr, log_images_every_n_steps=log_images_every_n_steps)
+        super().__init__(**kwargs)
         self.pixel_size = pixel_size
         self.n_rotations = n_rotations
         self.crop_size = crop_size
-        self.attention = Attention(6, width)
-        self.transport = Transport(6, feature_channels, n_rotations, crop_size, width)
+        self.width = width
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        """Refuse a checkpoint trained at another pixel size or number of rotation bins."""
+        saved = checkpoint.get("hyper_parameters", {})
+        for key in ("pixel_size", "n_rotations"):
+            ours = getattr(self, key)
+            if key in saved and saved[key] != ours:
+                raise ValueError(
+                    f"the checkpoint was trained with {key} {saved[key]} but this model is built "
+                    f"with {ours} (from data.init_args.{key}); set --data.init_args.{key} {saved[key]}"
+                )
+
+
+class AttentionTransportMethod(ImageMethod):
+    """Shared part of `mira`, `transporter_se2` and `transporter_se3`: attention + transport."""
+
+    def __init__(self, feature_channels: int = 3, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.feature_channels = feature_channels
+        self.attention = Attention(6, self.width)
+        self.transport = Transport(
+            6, feature_channels, self.n_rotations, self.crop_size, self.width
+        )
 
     def pick_place_losses(
         self, pick_image: torch.Tensor, place_images: torch.Tensor, batch: Batch

@@ -6,13 +6,11 @@ from typing import Any
 
 import torch
 
-from nerf_transporter import geometry as g
 from nerf_transporter.data.labels import action_from_labels
 from nerf_transporter.methods.base import (
-    DEFAULT_WIDTH,
     Action,
     Batch,
-    Method,
+    ImageMethod,
     heightmap_tensors,
     overlay,
     softmax_map,
@@ -25,30 +23,16 @@ from nerf_transporter.models import (
 )
 
 
-class Form2Fit(Method):
+class Form2Fit(ImageMethod):
     """Independent pick and place heatmaps on the heightmap; yaw bin by descriptor distance."""
 
     name = "form2fit"
     input_kind = "heightmap"
 
-    def __init__(
-        self,
-        lr: float = 1e-4,
-        log_images_every_n_steps: int = 250,
-        pixel_size: float = g.PIXEL_SIZE,
-        n_rotations: int = g.N_ROTATIONS,
-        crop_size: int = 64,
-        width: int = DEFAULT_WIDTH,
-        descriptor_dim: int = 16,
-        margin: float = 1.0,
-    ) -> None:
-        super().__init__(lr=lr, log_images_every_n_steps=log_images_every_n_steps)
-        self.pixel_size = pixel_size
-        self.n_rotations = n_rotations
-        self.crop_size = crop_size
+    def __init__(self, descriptor_dim: int = 16, margin: float = 1.0, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
         self.margin = margin
-        self.nets = Form2FitNets(6, n_rotations, crop_size, width, descriptor_dim)
-        self.save_hyperparameters()
+        self.nets = Form2FitNets(6, self.n_rotations, self.crop_size, self.width, descriptor_dim)
 
     def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
         image = batch["image"]

@@ -19,8 +19,9 @@ POSITION_SCALE = 0.1  # metres per regressed unit, positions relative to the wor
 class GTStateMLP(Method):
     """Regresses (position, rotation) of pick and place from the state vector.
 
-    `state_dim` is the task's state length; left unset, it is read from the first training batch
-    when training starts and stored in the checkpoint's hyperparameters.
+    `state_dim` is the task's state length; left unset, it is taken from the trainer's DataModule
+    (`RavensDataModule.state_dim`, known without loading data) when training starts, and stored in
+    the checkpoint's hyperparameters.
     """
 
     name = "gt_state_mlp"
@@ -29,24 +30,26 @@ class GTStateMLP(Method):
     def __init__(
         self,
         lr: float = 1e-3,
-        log_images_every_n_steps: int = 250,
         state_dim: int | None = None,
         hidden: int = 128,
         layers: int = 3,
+        **kwargs: Any,
     ) -> None:
-        super().__init__(lr=lr, log_images_every_n_steps=log_images_every_n_steps)
+        super().__init__(lr=lr, **kwargs)
         self.hidden = hidden
         self.layers = layers
         self.mlp = StateMLP(state_dim, hidden, layers) if state_dim is not None else None
-        self.save_hyperparameters()
 
     def configure_model(self) -> None:
         if self.mlp is not None:
             return
-        datamodule = getattr(self.trainer, "datamodule", None)
-        if datamodule is None:
-            raise ValueError("gt_state_mlp needs the state length: set model.init_args.state_dim")
-        state_dim = int(next(iter(datamodule.train_dataloader()))["state"].shape[-1])
+        state_dim = getattr(getattr(self.trainer, "datamodule", None), "state_dim", None)
+        if state_dim is None:
+            raise ValueError(
+                "gt_state_mlp needs the state length: set model.init_args.state_dim or train "
+                "with a DataModule that has `state_dim`"
+            )
+        state_dim = int(state_dim)
         self.hparams["state_dim"] = state_dim
         self.mlp = StateMLP(state_dim, self.hidden, self.layers)
 

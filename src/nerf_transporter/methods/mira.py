@@ -12,7 +12,6 @@ from nerf_transporter import geometry as g
 from nerf_transporter.data.labels import action_from_labels
 from nerf_transporter.data.preprocess import network_input
 from nerf_transporter.methods.base import (
-    DEFAULT_WIDTH,
     Action,
     AttentionTransportMethod,
     Batch,
@@ -34,30 +33,11 @@ class Mira(AttentionTransportMethod):
     name = "mira"
     input_kind = "imagery"
 
-    def __init__(
-        self,
-        lr: float = 1e-4,
-        log_images_every_n_steps: int = 250,
-        pixel_size: float = g.PIXEL_SIZE,
-        n_rotations: int = g.N_ROTATIONS,
-        crop_size: int = 64,
-        width: int = DEFAULT_WIDTH,
-        feature_channels: int = 3,
-        view_chunk: int = 8,
-    ) -> None:
-        super().__init__(
-            lr,
-            log_images_every_n_steps,
-            pixel_size,
-            n_rotations,
-            crop_size,
-            width,
-            feature_channels,
-        )
+    def __init__(self, view_chunk: int = 8, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
         if view_chunk < 1:
             raise ValueError(f"view_chunk must be >= 1, got {view_chunk}")
         self.view_chunk = view_chunk
-        self.save_hyperparameters()
 
     def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
         return self.pick_place_losses(batch["pick_image"], batch["place_images"], batch)

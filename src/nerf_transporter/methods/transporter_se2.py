@@ -7,10 +7,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from nerf_transporter import geometry as g
 from nerf_transporter.data.labels import action_from_labels
 from nerf_transporter.methods.base import (
-    DEFAULT_WIDTH,
     Action,
     AttentionTransportMethod,
     Batch,
@@ -24,27 +22,6 @@ class TransporterSE2(AttentionTransportMethod):
 
     name = "transporter_se2"
     input_kind = "heightmap"
-
-    def __init__(
-        self,
-        lr: float = 1e-4,
-        log_images_every_n_steps: int = 250,
-        pixel_size: float = g.PIXEL_SIZE,
-        n_rotations: int = g.N_ROTATIONS,
-        crop_size: int = 64,
-        width: int = DEFAULT_WIDTH,
-        feature_channels: int = 3,
-    ) -> None:
-        super().__init__(
-            lr,
-            log_images_every_n_steps,
-            pixel_size,
-            n_rotations,
-            crop_size,
-            width,
-            feature_channels,
-        )
-        self.save_hyperparameters()
 
     def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
         image = batch["image"]

@@ -7,8 +7,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from nerf_transporter import geometry as g
-from nerf_transporter.methods.base import DEFAULT_WIDTH, Action, Batch, heightmap_tensors
+from nerf_transporter.methods.base import Action, Batch, heightmap_tensors
 from nerf_transporter.methods.transporter_se2 import TransporterSE2
 from nerf_transporter.models import PoseRegression
 
@@ -21,30 +20,16 @@ class TransporterSE3(TransporterSE2):
     name = "transporter_se3"
     input_kind = "heightmap"
 
-    def __init__(
-        self,
-        lr: float = 1e-4,
-        log_images_every_n_steps: int = 250,
-        pixel_size: float = g.PIXEL_SIZE,
-        n_rotations: int = g.N_ROTATIONS,
-        crop_size: int = 64,
-        width: int = DEFAULT_WIDTH,
-        feature_channels: int = 3,
-        regression_features: int = 8,
-    ) -> None:
-        super().__init__(
-            lr,
-            log_images_every_n_steps,
-            pixel_size,
-            n_rotations,
-            crop_size,
-            width,
-            feature_channels,
-        )
+    def __init__(self, regression_features: int = 8, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
         self.regression = PoseRegression(
-            6, n_rotations, crop_size, width, feature_channels, regression_features
+            6,
+            self.n_rotations,
+            self.crop_size,
+            self.width,
+            self.feature_channels,
+            regression_features,
         )
-        self.save_hyperparameters()
 
     def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
         losses = super().losses(batch)
