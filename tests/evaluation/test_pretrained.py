@@ -138,7 +138,7 @@ def synthetic_observation(input_kind: str, pixel_size: float) -> dict:
 SHIPPED = load_manifest(PRETRAINED_DIR)
 
 
-def test_policies_are_shipped_for_every_task():
+def test_the_quickstart_policies_are_shipped():
     shipped = {(entry["task"], entry["method"]) for entry in SHIPPED}
     assert ("block-insertion", "mira") in shipped
     assert ("block-insertion", "transporter_se2") in shipped
