@@ -3,14 +3,11 @@
 interpreter, so what it loaded shows in `sys.modules`."""
 
 import json
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
-SRC = Path(__file__).resolve().parents[1] / "src"
+from tests.helpers.fresh_python import run_python
+
 LAYERS = ["sim", "imagery", "data", "methods", "evaluation", "cli"]
 
 
@@ -21,14 +18,7 @@ def loaded_packages(code: str) -> set[str]:
         "print(json.dumps(sorted({name.split('.')[1] for name in sys.modules "
         "if name.startswith('nerf_transporter.')})))"
     )
-    result = subprocess.run(
-        [sys.executable, "-c", probe],
-        env={**os.environ, "PYTHONPATH": str(SRC)},
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert result.returncode == 0, result.stderr[-2000:]
+    result = run_python("-c", probe)
     return set(json.loads(result.stdout.splitlines()[-1]))
 
 

@@ -2,17 +2,12 @@
 `--help`, and no PyBullet banner in the output."""
 
 import json
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import imageio.v2 as imageio
 import pytest
 
 from nerf_transporter.sim.oracle_cli import main
-
-SRC = Path(__file__).resolve().parents[2] / "src"
+from tests.helpers.fresh_python import run_python
 
 
 def test_episode_lines_json_summary_and_mp4_video(tmp_path, capsys):
@@ -77,15 +72,9 @@ def test_help_shows_choices_and_defaults(capsys):
 
 def test_no_pybullet_banner_in_the_output():
     """PyBullet prints its build time on import and its argv on connect unless silenced."""
-    result = subprocess.run(
-        [sys.executable, "-m", "nerf_transporter.cli", "oracle", "--episodes", "1"]
-        + ["--task", "block-insertion"],
-        env={**os.environ, "PYTHONPATH": str(SRC)},
-        capture_output=True,
-        text=True,
-        timeout=300,
+    result = run_python(
+        "-m", "nerf_transporter.cli", "oracle", "--episodes", "1", "--task", "block-insertion"
     )
-    assert result.returncode == 0, result.stderr[-2000:]
     assert "block-insertion normal: " in result.stdout
     for output in (result.stdout, result.stderr):
         assert "argv[0]=" not in output

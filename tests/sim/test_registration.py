@@ -1,9 +1,7 @@
 """The tasks as gymnasium environments: registered ids, `gymnasium.make` options, the env checker."""
 
 import os
-import subprocess
 import sys
-from pathlib import Path
 
 import gymnasium
 import numpy as np
@@ -14,8 +12,8 @@ from gymnasium.utils.passive_env_checker import env_render_passive_checker
 import nerf_transporter  # noqa: F401  (registers the ids)
 from nerf_transporter.sim import TASKS
 from nerf_transporter.sim.registration import TASK_NAMES, env_id
+from tests.helpers.fresh_python import run_python
 
-SRC = Path(__file__).resolve().parents[2] / "src"
 # check_env makes the environment once per render mode; "human" opens PyBullet's GUI window.
 HAS_DISPLAY = bool(os.environ.get("DISPLAY"))
 
@@ -60,14 +58,7 @@ def test_module_prefix_registers_the_ids_in_a_fresh_interpreter():
         "env = gymnasium.make('nerf_transporter:nerf_transporter/block-insertion-v0')\n"
         "print(env.spec.id, env.unwrapped.task.name)\n"
     )
-    result = subprocess.run(
-        [sys.executable, "-c", code],
-        env={**os.environ, "PYTHONPATH": str(SRC)},
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert result.returncode == 0, result.stderr[-2000:]
+    result = run_python("-c", code, timeout=120)
     assert result.stdout.split() == ["nerf_transporter/block-insertion-v0", "block-insertion"]
 
 
