@@ -370,3 +370,14 @@ def test_fit_ends_with_the_run_folder_and_the_next_command_and_no_tips(tmp_path,
     (checkpoint,) = (run / "checkpoints").glob("*.ckpt")
     assert f"next: lightning test --config {run / 'config.yaml'} --ckpt_path {checkpoint}" in out
     assert "Tip:" not in caplog.text
+
+
+def test_a_fit_logged_to_a_file_reports_progress_in_lines(tmp_path, capsys):
+    """stderr is no terminal here (as in a log file): plain lines, no carriage-return frames."""
+    config = tiny_config(tmp_path / "tiny.yaml", batch_size=2)
+    config.write_text(config.read_text().replace("  enable_progress_bar: false\n", ""))
+    assert lightning_main(["fit", "--config", str(config)]) == 0
+    err = capsys.readouterr().err
+    assert "\r" not in err
+    (last,) = [line for line in err.splitlines() if line.startswith("step 2/2 ")]
+    assert "train_loss" in last and last.endswith("steps/s")

@@ -257,10 +257,21 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
         parser_kwargs={"parser_mode": config_include.register()},
         save_config_callback=RunConfigCallback,
         save_config_kwargs={"overwrite": False},
-        trainer_defaults={"callbacks": [test_callback]},  # appended to a config's callbacks
+        trainer_defaults=trainer_defaults(test_callback),
         args=args,
         run=run,
     )
+
+
+def trainer_defaults(test_callback: Any) -> dict[str, Any]:
+    """Defaults under a config's trainer keys: the closed-loop test callback (appended to a config's
+    callbacks) and, where stderr is not a terminal (a log file), progress as lines instead of
+    Lightning's bar (`progress.LineProgress`; a config's `enable_progress_bar` still wins)."""
+    if sys.stderr.isatty():
+        return {"callbacks": [test_callback]}
+    from nerf_transporter.progress import LineProgress
+
+    return {"callbacks": [test_callback, LineProgress()], "enable_progress_bar": False}
 
 
 def free_name(folder: Path, stem: str, stage: str) -> str:
