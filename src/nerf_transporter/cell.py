@@ -44,6 +44,7 @@ from nerf_transporter.evaluation.checkpoints import (
     best_record,
     checkpoint_steps,
     evaluate_checkpoints,
+    validation_score,
 )
 from nerf_transporter.evaluation.report import TASKS, cell, row_key
 from nerf_transporter.evaluation.testing import checkpoint_step, erred_episodes_text
@@ -299,15 +300,9 @@ def validation_records(run_dir: Path, episodes: int) -> list[dict[str, Any]]:
     stored with it; `errors` is 1 where that round had erred episodes (stored as -inf)."""
     records = []
     for step, path in checkpoint_steps(run_dir):
-        states = torch.load(path, map_location="cpu", weights_only=True, mmap=True)["callbacks"]
-        scores = [
-            state["current_score"]
-            for key, state in states.items()
-            if key.startswith(CHECKPOINT) and state.get("monitor") == MONITOR
-        ]
-        if not scores or scores[0] is None:
+        rate = validation_score(torch.load(path, map_location="cpu", weights_only=True, mmap=True))
+        if rate is None:
             continue  # saved without a validation round (e.g. by an interrupted fit)
-        rate = float(scores[0])
         valid = math.isfinite(rate)
         successes = round(rate * episodes) if valid else None
         records.append(

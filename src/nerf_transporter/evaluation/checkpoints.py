@@ -19,6 +19,7 @@ import logging
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -46,6 +47,16 @@ def checkpoint_steps(run_dir: Path) -> list[tuple[int, Path]]:
             continue
         by_step.setdefault(step, path)
     return sorted(by_step.items())
+
+
+def validation_score(checkpoint: dict[str, Any]) -> float | None:
+    """The closed-loop validation success a loaded checkpoint was saved with: its ModelCheckpoint's
+    `eval/success_rate` score (not finite where that round had erred episodes); None without one."""
+    for key, state in checkpoint.get("callbacks", {}).items():
+        if key.startswith("ModelCheckpoint") and state.get("monitor") == "eval/success_rate":
+            score = state.get("current_score")
+            return None if score is None else float(score)
+    return None
 
 
 def load_checkpoint(path: Path, device: torch.device) -> tuple[torch.nn.Module, object]:

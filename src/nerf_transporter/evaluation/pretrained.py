@@ -26,7 +26,7 @@ import yaml
 
 from nerf_transporter.atomic import write_file, write_json
 from nerf_transporter.console import HelpFormatter
-from nerf_transporter.evaluation.checkpoints import load_checkpoint
+from nerf_transporter.evaluation.checkpoints import load_checkpoint, validation_score
 from nerf_transporter.evaluation.report import cell
 from nerf_transporter.evaluation.rollout import (
     DEFAULT_CACHE_DIR,
@@ -94,11 +94,7 @@ def run_config(checkpoint: Path) -> dict[str, Any]:
 def validation_figures(checkpoint: dict[str, Any], config: dict[str, Any]) -> dict[str, Any]:
     """The closed-loop validation success the checkpoint was chosen by (its ModelCheckpoint's
     score when it was saved) and the episodes of a validation round (the run's config)."""
-    figures: dict[str, Any] = {"success_rate": None, "episodes": None}
-    for key, state in checkpoint.get("callbacks", {}).items():
-        if key.startswith("ModelCheckpoint") and state.get("monitor") == "eval/success_rate":
-            score = state.get("current_score")
-            figures["success_rate"] = None if score is None else float(score)
+    figures: dict[str, Any] = {"success_rate": validation_score(checkpoint), "episodes": None}
     for callback in config.get("trainer", {}).get("callbacks") or []:
         if str(callback.get("class_path", "")).endswith("SuccessRateCallback"):
             figures["episodes"] = callback.get("init_args", {}).get("episodes")
