@@ -43,6 +43,7 @@ from nerf_transporter.device_info import describe_device
 from nerf_transporter.evaluation.checkpoints import (
     best_record,
     checkpoint_steps,
+    config_callbacks,
     evaluate_checkpoints,
     validation_score,
 )
@@ -85,11 +86,7 @@ def resolve_config(files: list[Path]) -> dict[str, Any]:
 
 
 def _callback(config: dict[str, Any], name: str) -> dict[str, Any]:
-    found = [
-        callback
-        for callback in config.get("trainer", {}).get("callbacks") or []
-        if str(callback.get("class_path", "")).rsplit(".", 1)[-1] == name
-    ]
+    found = config_callbacks(config, name)
     if len(found) != 1:
         raise CellError(
             f"the config has {len(found)} {name} callbacks, run-cell needs one: it picks the "

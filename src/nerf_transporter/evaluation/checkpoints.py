@@ -49,6 +49,15 @@ def checkpoint_steps(run_dir: Path) -> list[tuple[int, Path]]:
     return sorted(by_step.items())
 
 
+def config_callbacks(config: dict[str, Any], name: str) -> list[dict[str, Any]]:
+    """The `trainer.callbacks` entries of a resolved run config whose class is named `name`."""
+    return [
+        callback
+        for callback in config.get("trainer", {}).get("callbacks") or []
+        if str(callback.get("class_path", "")).rsplit(".", 1)[-1] == name
+    ]
+
+
 def validation_score(checkpoint: dict[str, Any]) -> float | None:
     """The closed-loop validation success a loaded checkpoint was saved with: its ModelCheckpoint's
     `eval/success_rate` score (not finite where that round had erred episodes); None without one."""

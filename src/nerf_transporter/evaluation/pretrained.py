@@ -26,7 +26,11 @@ import yaml
 
 from nerf_transporter.atomic import write_file, write_json
 from nerf_transporter.console import HelpFormatter
-from nerf_transporter.evaluation.checkpoints import load_checkpoint, validation_score
+from nerf_transporter.evaluation.checkpoints import (
+    config_callbacks,
+    load_checkpoint,
+    validation_score,
+)
 from nerf_transporter.evaluation.report import cell
 from nerf_transporter.evaluation.rollout import (
     DEFAULT_CACHE_DIR,
@@ -94,11 +98,9 @@ def run_config(checkpoint: Path) -> dict[str, Any]:
 def validation_figures(checkpoint: dict[str, Any], config: dict[str, Any]) -> dict[str, Any]:
     """The closed-loop validation success the checkpoint was chosen by (its ModelCheckpoint's
     score when it was saved) and the episodes of a validation round (the run's config)."""
-    figures: dict[str, Any] = {"success_rate": validation_score(checkpoint), "episodes": None}
-    for callback in config.get("trainer", {}).get("callbacks") or []:
-        if str(callback.get("class_path", "")).endswith("SuccessRateCallback"):
-            figures["episodes"] = callback.get("init_args", {}).get("episodes")
-    return figures
+    rounds = config_callbacks(config, "SuccessRateCallback")
+    episodes = rounds[0].get("init_args", {}).get("episodes") if rounds else None
+    return {"success_rate": validation_score(checkpoint), "episodes": episodes}
 
 
 def export_pretrained(
