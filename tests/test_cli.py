@@ -48,6 +48,9 @@ class SyntheticDataModule(pl.LightningDataModule):
     def train_dataloader(self) -> DataLoader:
         return DataLoader(self.samples, batch_size=self.batch_size)
 
+    def val_dataloader(self) -> list:
+        return []  # as RavensDataModule without validation demos (data.n_val_demos: 0)
+
 
 def tiny_config(path: Path, **data_args) -> Path:
     model_args = ", ".join(f"{k}: {v}" for k, v in SIZE.items())
@@ -361,9 +364,13 @@ def test_mixed_precision_fit(name, tmp_path):
     assert torch.isfinite(cli.trainer.callback_metrics["train_loss"])
 
 
-def test_fit_ends_with_the_run_folder_and_the_next_command_and_no_tips(tmp_path, capsys, caplog):
+def test_fit_ends_with_the_run_folder_and_the_next_command_and_no_tips(
+    tmp_path, capsys, caplog, recwarn
+):
     config = tiny_config(tmp_path / "tiny.yaml", batch_size=2)
     assert lightning_main(["fit", "--config", str(config)]) == 0
+    shown = [w for w in recwarn if not issubclass(w.category, DeprecationWarning)]  # as python
+    assert not shown, [str(w.message) for w in shown]
     out = capsys.readouterr().out
     run = Path("logs/block-insertion/mira/version_0")
     assert f"run folder: {run}" in out

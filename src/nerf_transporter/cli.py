@@ -320,6 +320,7 @@ def quiet_lightning() -> None:
     warnings.filterwarnings("ignore", message=r".*does not have many workers")
     # validation losses are optional (data.n_val_demos); success is measured closed loop
     warnings.filterwarnings("ignore", message=r".*but have no `val_dataloader`")
+    warnings.filterwarnings("ignore", message=r"Total length of `list` across ranks is zero")
 
 
 def lightning_main(args: list[str] | None = None) -> int:
