@@ -2,6 +2,7 @@ import functools
 import http.server
 import json
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -260,12 +261,17 @@ data:
     return config
 
 
-def test_lightning_test_video_writes_a_captioned_mp4_per_episode(tmp_path):
+def test_lightning_test_video_writes_a_captioned_mp4_per_episode(tmp_path, capsys):
     run = fit_two_steps(tmp_path)
     (checkpoint,) = (run / "checkpoints").glob("*.ckpt")
     config = closed_loop_test_config(tmp_path)
     argv = ["test", "--config", str(config), "--ckpt_path", str(checkpoint), "--video", "videos"]
+    capsys.readouterr()
     assert lightning_main(argv) == 0
+    out = capsys.readouterr().out
+    # the rate is printed once, rounded, with its interval (not Lightning's float32 table)
+    assert re.search(r"^test success: \d+% \(2, \d+-\d+\) - \d of 2$", out, re.M), out
+    assert "Test metric" not in out
     videos = sorted(Path("videos").glob("*.mp4"))
     assert [v.name for v in videos] == [
         "block-insertion-normal-seed1-mira.mp4",

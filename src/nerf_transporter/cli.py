@@ -206,6 +206,9 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
             if "weights_only" in self._subcommand_method_arguments[subcommand]:
                 parser.set_defaults({"weights_only": True})  # never unpickle code from a checkpoint
             if subcommand == "test":
+                # the callback prints the rounded rate with its interval; Lightning's table would
+                # repeat it with float32 digits
+                parser.set_defaults({"verbose": False})
                 parser.add_argument(
                     "--video",
                     type=str | None,

@@ -175,6 +175,9 @@ def test_lightning_test_writes_results_beside_the_checkpoint(fitted, tmp_path, c
     assert metrics["test/episodes"] == 2
     assert metrics["test/success_rate"] == pytest.approx(successes / 2)
     assert test_callback.record == results  # what the CLI reads for its exit status
+    low, high = round(100 * results["ci_low"]), round(100 * results["ci_high"])
+    rate = f"{round(100 * successes / 2)}% (2, {low}-{high}) - {successes} of 2"
+    assert f"test success: {rate}\n" in capsys.readouterr().out
 
     capsys.readouterr()
     assert report_main([str(tmp_path)]) == 0

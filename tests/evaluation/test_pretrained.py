@@ -13,15 +13,16 @@ from nerf_transporter.atomic import write_json
 from nerf_transporter.cli import main as cli_main
 from nerf_transporter.evaluation.checkpoints import load_checkpoint
 from nerf_transporter.evaluation.pretrained import (
-    PRETRAINED_DIR,
     export_pretrained,
     load_manifest,
+    policy_file_name,
     sha256,
     shipped_table,
     try_policy,
 )
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
-from nerf_transporter.evaluation.testing import results_record
+from nerf_transporter.evaluation.testing import results_directory, results_record
+from nerf_transporter.pretrained import PRETRAINED_DIR
 from tests.helpers.state_run import trained_state_mlp
 
 
@@ -163,3 +164,11 @@ def test_a_shipped_policy_loads_weights_only_and_acts(entry):
 def test_the_readme_states_the_shipped_policies_as_measured():
     readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
     assert shipped_table(SHIPPED) in readme, "README: paste `nerf-transporter try --list`"
+
+
+def test_testing_a_shipped_policy_writes_its_results_to_the_run_folder(tmp_path):
+    shipped = PRETRAINED_DIR / policy_file_name("block-insertion", "mira")
+    assert results_directory(str(shipped), str(tmp_path)) == tmp_path
+    copy = tmp_path / "copy" / shipped.name
+    assert results_directory(str(copy), str(tmp_path / "run")) == copy.parent
+    assert results_directory(None, str(tmp_path)) == tmp_path

@@ -40,9 +40,9 @@ from nerf_transporter.evaluation.rollout import (
 )
 from nerf_transporter.evaluation.testing import checkpoint_step, results_record
 from nerf_transporter.parallel import share_cores
+from nerf_transporter.pretrained import PRETRAINED_DIR
 from nerf_transporter.splits import split_seed
 
-PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "pretrained"
 MANIFEST = "manifest.json"
 # what a shipped policy keeps of a Lightning checkpoint (optimizer and loop states are dropped)
 KEPT_KEYS = (

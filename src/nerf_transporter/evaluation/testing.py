@@ -7,7 +7,7 @@ processes (default: one per core available to this process), pools the outcomes 
 processes), logs `test/success_rate`, its 95% Wilson interval, the episode count and the erred
 episodes (`test/errors`, not counted in the rate), and writes `results-<checkpoint>.json` beside
 the checkpoint (`results-<checkpoint>-<setting>.json` when the DataModule's `test_setting` differs
-from its training `setting`). A results file is never replaced: testing the same checkpoint again
+from its training `setting`; in the run folder for a policy shipped in the package). A results file is never replaced: testing the same checkpoint again
 writes `...-2.json`, and `nerf-transporter report` takes the newest. `lightning test` exits
 non-zero when any episode erred. The CLI adds the callback to every trainer it builds (also when
 a config lists its own callbacks); a Trainer built by hand needs it in its `callbacks`.
@@ -38,8 +38,10 @@ from lightning.pytorch.callbacks import Callback
 
 from nerf_transporter.atomic import write_new_json
 from nerf_transporter.evaluation.metrics import summarize
+from nerf_transporter.evaluation.report import cell
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
 from nerf_transporter.parallel import share_cores
+from nerf_transporter.pretrained import PRETRAINED_DIR
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
 
@@ -51,6 +53,14 @@ def results_stem(
     name = Path(checkpoint).stem if checkpoint else f"step{global_step}"
     stem = f"results-{name}"
     return stem if setting == training_setting else f"{stem}-{setting}"
+
+
+def results_directory(checkpoint: str | None, log_dir: str | None) -> Path:
+    """Beside the checkpoint, except for a policy shipped in the package (`nerf_transporter/
+    pretrained` is no place for results) or no checkpoint at all: then the run folder."""
+    if checkpoint and Path(checkpoint).resolve().parent != PRETRAINED_DIR:
+        return Path(checkpoint).parent
+    return Path(log_dir or ".")
 
 
 def results_record(
@@ -186,13 +196,14 @@ class ClosedLoopTestCallback(Callback):
             if record[name] is not None:  # rounded for Lightning's table; the file keeps all digits
                 pl_module.log(f"test/{name}", round(float(record[name]), 4))
         self.record = record
-        # trainer.log_dir is a collective call under DDP: every process asks for it
-        directory = Path(checkpoint).parent if checkpoint else Path(trainer.log_dir or ".")
+        log_dir = trainer.log_dir  # a collective call under DDP: every process asks for it
+        directory = results_directory(str(checkpoint) if checkpoint else None, log_dir)
         if trainer.is_global_zero:
             stem = results_stem(
                 record["checkpoint"], record["global_step"], record["setting"], datamodule.setting
             )
             path = write_new_json(directory, stem, record)
+            print(f"test success: {cell(record)} - {record['successes']} of {record['episodes']}")
             print(f"closed-loop test results written to {path}")
             if record["errors"]:
                 print(erred_episodes_text(record), file=sys.stderr)
