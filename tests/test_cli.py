@@ -8,15 +8,18 @@ import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from types import SimpleNamespace
 
 import imageio.v2 as imageio
 import lightning.pytorch as pl
 import numpy as np
 import pytest
 import torch
+from lightning.pytorch.callbacks import ModelCheckpoint
 from torch.utils.data import DataLoader
 
-from nerf_transporter.cli import build_cli, claim_version, lightning_main, main
+from nerf_transporter.cli import build_cli, claim_version, fit_summary, lightning_main, main
+from nerf_transporter.evaluation.callback import SuccessRateCallback
 from nerf_transporter.methods import METHODS, Mira, TransporterSE2
 from tests.helpers.synthetic import SIZE, STATE_DIM, synthetic_batch, synthetic_observation
 
@@ -383,6 +386,28 @@ def test_fit_ends_with_the_run_folder_and_the_next_command_and_no_tips(
     (checkpoint,) = (run / "checkpoints").glob("*.ckpt")
     assert f"next: lightning test --config {run / 'config.yaml'} --ckpt_path {checkpoint}" in out
     assert "Tip:" not in caplog.text
+
+
+def test_fit_names_the_latest_of_the_best_validated_checkpoints(tmp_path):
+    """As run-cell and evaluate-checkpoints choose; Lightning's best_model_path is the first."""
+    folder = tmp_path / "run" / "checkpoints"
+    folder.mkdir(parents=True)
+    for step, score in ((2, 0.5), (4, float("-inf")), (6, 0.5), (8, 0.25)):  # -inf: erred round
+        state = {"monitor": "eval/success_rate", "current_score": torch.tensor(score)}
+        checkpoint = {"global_step": step, "callbacks": {"ModelCheckpoint{...}": state}}
+        torch.save(checkpoint, folder / f"step{step:06d}.ckpt")
+    checkpoints = ModelCheckpoint(dirpath=folder, monitor="eval/success_rate", mode="max")
+    checkpoints.best_model_path = str(folder / "step000002.ckpt")
+    trainer = SimpleNamespace(
+        logger=SimpleNamespace(log_dir=str(tmp_path / "run")),
+        checkpoint_callback=checkpoints,
+        callbacks=[checkpoints, SuccessRateCallback(episodes=4)],
+    )
+    summary = fit_summary(trainer)
+    best = folder / "step000006.ckpt"
+    chosen = "validation success 2/4 at step 6, the latest of the best"
+    assert f"best checkpoint ({chosen}): {best}" in summary
+    assert f"--ckpt_path {best}" in summary
 
 
 def test_a_fit_logged_to_a_file_reports_progress_in_lines(tmp_path, capsys):

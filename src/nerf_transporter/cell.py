@@ -23,7 +23,6 @@ import argparse
 import copy
 import hashlib
 import json
-import math
 import subprocess
 import sys
 import tempfile
@@ -42,10 +41,9 @@ from nerf_transporter.console import HelpFormatter
 from nerf_transporter.device_info import describe_device
 from nerf_transporter.evaluation.checkpoints import (
     best_record,
-    checkpoint_steps,
     config_callbacks,
     evaluate_checkpoints,
-    validation_score,
+    validation_records,
 )
 from nerf_transporter.evaluation.report import TASKS, cell, row_key
 from nerf_transporter.evaluation.testing import checkpoint_step, erred_episodes_text
@@ -290,29 +288,6 @@ def train_wall_s(run_dir: Path) -> float:
             written = [mtime for mtime in checkpoints if mtime >= segment["start_time"]]
             total += max(written, default=segment["start_time"]) - segment["start_time"]
     return total
-
-
-def validation_records(run_dir: Path, episodes: int) -> list[dict[str, Any]]:
-    """One record per checkpoint of the run (by step): the validation success ModelCheckpoint
-    stored with it; `errors` is 1 where that round had erred episodes (stored as -inf)."""
-    records = []
-    for step, path in checkpoint_steps(run_dir):
-        rate = validation_score(torch.load(path, map_location="cpu", weights_only=True, mmap=True))
-        if rate is None:
-            continue  # saved without a validation round (e.g. by an interrupted fit)
-        valid = math.isfinite(rate)
-        successes = round(rate * episodes) if valid else None
-        records.append(
-            {
-                "checkpoint": str(path),
-                "global_step": step,
-                "success_rate": successes / episodes if valid else None,
-                "successes": successes,
-                "episodes": episodes if valid else 0,
-                "errors": 0 if valid else 1,
-            }
-        )
-    return records
 
 
 def run_cell(

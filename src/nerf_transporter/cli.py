@@ -290,15 +290,31 @@ def fit_summary(trainer: Any) -> str:
     """Where a finished fit left its run, its best checkpoint and the command that tests it."""
     from lightning.pytorch.cli import SaveConfigCallback
 
+    from nerf_transporter.evaluation.callback import SuccessRateCallback
+    from nerf_transporter.evaluation.checkpoints import best_record, validation_records
+
     logger = trainer.logger  # its own log_dir: Trainer.log_dir is a collective call under DDP
     folder = Path(getattr(logger, "log_dir", None) or trainer.default_root_dir)
     lines = [f"run folder: {folder}"]
     checkpoint = trainer.checkpoint_callback
     best = getattr(checkpoint, "best_model_path", "") or getattr(checkpoint, "last_model_path", "")
+    score = getattr(checkpoint, "best_model_score", None)
+    monitor = getattr(checkpoint, "monitor", None)
+    chosen = f" ({monitor} {float(score):.2f})" if monitor and score is not None else ""
+    validation = [c for c in trainer.callbacks if isinstance(c, SuccessRateCallback)]
+    folder_of_checkpoints = getattr(checkpoint, "dirpath", None)
+    if validation and folder_of_checkpoints and Path(folder_of_checkpoints).is_dir():
+        # the rule run-cell and evaluate-checkpoints choose by: among equals the later step
+        record = best_record(
+            validation_records(Path(folder_of_checkpoints), validation[0].episodes)
+        )
+        if record is not None:
+            best = record["checkpoint"]
+            chosen = (
+                f" (validation success {record['successes']}/{record['episodes']} at step "
+                f"{record['global_step']}, the latest of the best)"
+            )
     if best:
-        score = getattr(checkpoint, "best_model_score", None)
-        monitor = getattr(checkpoint, "monitor", None)
-        chosen = f" ({monitor} {float(score):.2f})" if monitor and score is not None else ""
         lines.append(f"best checkpoint{chosen}: {best}")
         saved = [c for c in trainer.callbacks if isinstance(c, SaveConfigCallback)]
         config = folder / saved[0].config_filename if saved else Path("<config>")

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 import time
 from pathlib import Path
@@ -66,6 +67,29 @@ def validation_score(checkpoint: dict[str, Any]) -> float | None:
             score = state.get("current_score")
             return None if score is None else float(score)
     return None
+
+
+def validation_records(run_dir: Path, episodes: int) -> list[dict[str, Any]]:
+    """One record per checkpoint of the run (by step): the validation success ModelCheckpoint
+    stored with it; `errors` is 1 where that round had erred episodes (stored as -inf)."""
+    records = []
+    for step, path in checkpoint_steps(run_dir):
+        rate = validation_score(torch.load(path, map_location="cpu", weights_only=True, mmap=True))
+        if rate is None:
+            continue  # saved without a validation round (e.g. by an interrupted fit)
+        valid = math.isfinite(rate)
+        successes = round(rate * episodes) if valid else None
+        records.append(
+            {
+                "checkpoint": str(path),
+                "global_step": step,
+                "success_rate": successes / episodes if valid else None,
+                "successes": successes,
+                "episodes": episodes if valid else 0,
+                "errors": 0 if valid else 1,
+            }
+        )
+    return records
 
 
 def load_checkpoint(path: Path, device: torch.device) -> tuple[torch.nn.Module, object]:
