@@ -271,10 +271,12 @@ def test_lightning_test_video_writes_a_captioned_mp4_per_episode(tmp_path, capsy
     argv = ["test", "--config", str(config), "--ckpt_path", str(checkpoint), "--video", "videos"]
     capsys.readouterr()
     assert lightning_main(argv) == 0
-    out = capsys.readouterr().out
+    out, err = capsys.readouterr()
     # the rate is printed once, rounded, with its interval (not Lightning's float32 table)
     assert re.search(r"^test success: \d+% \(2, \d+-\d+\) - \d of 2$", out, re.M), out
     assert "Test metric" not in out
+    # no terminal here, as in a log: the episodes' progress in lines
+    assert "\r" not in err and re.search(r"^test episodes: 2/2 episodes  successes \d", err, re.M)
     videos = sorted(Path("videos").glob("*.mp4"))
     assert [v.name for v in videos] == [
         "block-insertion-normal-seed1-mira.mp4",

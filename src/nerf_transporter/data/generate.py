@@ -33,10 +33,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from nerf_transporter import geometry as g
-from nerf_transporter.console import HelpFormatter
+from nerf_transporter.console import HelpFormatter, progress_bar
 from nerf_transporter.data import episode as ep
 from nerf_transporter.data.labels import heightmap_labels, mira_labels
 from nerf_transporter.data.observation import (
@@ -359,12 +358,8 @@ def generate_dataset(
     target = shard_target(episodes, shard)
     todo = _pending_indices(config.split, shard, done, failed)
 
-    bar = tqdm(
-        total=target,
-        initial=min(len(done), target),
-        desc=config.dataset_name(),
-        unit="episode",
-        disable=None if progress else True,  # None: no bar where stderr is not a terminal
+    bar = progress_bar(
+        target, config.dataset_name(), enabled=progress, initial=min(len(done), target)
     )
     failures, failures_in_a_row, seconds = 0, 0, []
     pending: dict[cf.Future, int] = {}
@@ -380,19 +375,19 @@ def generate_dataset(
                 pending.pop(future)
                 outcome = future.result()
                 seconds.append(outcome.seconds)
+                failures += not outcome.success
+                bar.set_postfix(failures=failures, s_per_episode=f"{np.mean(seconds):.1f}")
                 if outcome.success:
                     done.add(outcome.index)
                     bar.update(1)
                     failures_in_a_row = 0
                 else:
-                    failures += 1
                     failures_in_a_row += 1
                     if failures_in_a_row >= max_failures_in_a_row:
                         raise RuntimeError(
                             f"{config.dataset_name()}: {failures_in_a_row} oracle rollouts failed in a "
                             f"row (last: seed {outcome.seed}, {outcome.reason}); is the task's oracle broken?"
                         )
-                bar.set_postfix(failures=failures, s_per_episode=f"{np.mean(seconds):.1f}")
     bar.close()
     return dataset_dir
 

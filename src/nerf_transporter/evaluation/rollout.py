@@ -29,8 +29,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
+from nerf_transporter.console import progress_bar
 from nerf_transporter.data.labels import mira_labels
 from nerf_transporter.data.observation import (
     INPUT_KINDS,
@@ -449,22 +449,15 @@ class Evaluator:
             raise ValueError(f"workers must be >= 1, got {workers}")
         workers = min(workers, len(seeds)) or 1
         successes, errors = 0, 0
-        # disable=None: no bar where stderr is not a terminal (logs get no carriage-return frames);
-        # leave=False: the bar goes when done, inside Lightning's own bar, and a summary line stays
-        with tqdm(
-            total=len(seeds),
-            desc=desc,
-            unit="episode",
-            disable=None if progress else True,
-            leave=False,
-        ) as bar:
+        # leave=False: a terminal's bar goes when done, inside Lightning's own bar
+        with progress_bar(len(seeds), desc, enabled=progress, leave=False) as bar:
 
             def count(result: EpisodeResult) -> None:
                 nonlocal successes, errors
                 successes += result.success
                 errors += result.error is not None
-                bar.update(1)
                 bar.set_postfix(successes=successes, **({"errors": errors} if errors else {}))
+                bar.update(1)
 
             videos = len(seeds) if video_episodes is None else video_episodes
             episodes = [

@@ -11,7 +11,7 @@ import imageio.v2 as imageio
 import numpy as np
 from tqdm import tqdm
 
-from nerf_transporter.console import HelpFormatter
+from nerf_transporter.console import HelpFormatter, progress_bar
 from nerf_transporter.sim.env import make_env
 from nerf_transporter.sim.tasks import SETTINGS, TASKS
 
@@ -62,24 +62,25 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     frames: list[np.ndarray] = []
     successes = 0
-    progress = tqdm(range(args.episodes), desc=f"{args.task}-{args.setting}", file=sys.stderr)
-    for index in progress:
-        seed = args.seed + index
-        env.reset(seed=seed)
-        recording = args.video is not None and index == 0
-        if recording:
-            env.frame_callback = frames.append
-            frames.append(env.render())
-        _, reward, _, _, info = env.step(env.task.oracle(env))
-        env.frame_callback = None
-        successes += int(info["success"])
-        progress.set_postfix(success_rate=f"{successes / (index + 1):.2f}")
-        tqdm.write(
-            f"episode {index} seed {seed}: success={info['success']} reward={reward:.0f} "
-            f"position_error_mm={1000 * info.get('position_error', float('nan')):.1f} "
-            f"failure={info['failure']}",
-            file=sys.stdout,
-        )
+    with progress_bar(args.episodes, f"{args.task}-{args.setting}") as progress:
+        for index in range(args.episodes):
+            seed = args.seed + index
+            env.reset(seed=seed)
+            recording = args.video is not None and index == 0
+            if recording:
+                env.frame_callback = frames.append
+                frames.append(env.render())
+            _, reward, _, _, info = env.step(env.task.oracle(env))
+            env.frame_callback = None
+            successes += int(info["success"])
+            progress.set_postfix(success_rate=f"{successes / (index + 1):.2f}")
+            tqdm.write(
+                f"episode {index} seed {seed}: success={info['success']} reward={reward:.0f} "
+                f"position_error_mm={1000 * info.get('position_error', float('nan')):.1f} "
+                f"failure={info['failure']}",
+                file=sys.stdout,
+            )
+            progress.update(1)
     env.close()
     if args.video is not None:
         _write_video(args.video, frames, env.metadata["render_fps"])
