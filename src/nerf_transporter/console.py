@@ -1,4 +1,4 @@
-"""What the commands share on the terminal: `--help` formatting, and progress that reads in a log."""
+"""What the commands share on the terminal: `--help` formatting, progress that reads in a log."""
 
 from __future__ import annotations
 

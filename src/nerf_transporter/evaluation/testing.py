@@ -7,10 +7,11 @@ processes (default: one per core available to this process), pools the outcomes 
 processes), logs `test/success_rate`, its 95% Wilson interval, the episode count and the erred
 episodes (`test/errors`, not counted in the rate), and writes `results-<checkpoint>.json` beside
 the checkpoint (`results-<checkpoint>-<setting>.json` when the DataModule's `test_setting` differs
-from its training `setting`; in the run folder for a policy shipped in the package). A results file is never replaced: testing the same checkpoint again
-writes `...-2.json`, and `nerf-transporter report` takes the newest. `lightning test` exits
-non-zero when any episode erred. The CLI adds the callback to every trainer it builds (also when
-a config lists its own callbacks); a Trainer built by hand needs it in its `callbacks`.
+from its training `setting`; in the run folder for a policy shipped in the package). A results
+file is never replaced: testing the same checkpoint again writes `...-2.json`, and
+`nerf-transporter report` takes the newest. `lightning test` exits non-zero when any episode
+erred. The CLI adds the callback to every trainer it builds (also when a config lists its own
+callbacks); a Trainer built by hand needs it in its `callbacks`.
 
 Why a callback around Lightning's own test loop: judging a policy is evaluation's business, so the
 methods (`methods/base.py`) know nothing of it and import nothing from here. Lightning insists on

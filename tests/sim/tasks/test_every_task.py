@@ -1,4 +1,4 @@
-"""What every task promises: determinism, reachable oracle actions, an object at its target stays."""
+"""What every task promises: determinism, reachable oracle actions, an object put on target stays."""
 
 import pytest
 
