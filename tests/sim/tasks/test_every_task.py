@@ -1,4 +1,4 @@
-"""What every task promises: determinism, reachable oracle actions, an object put on target stays."""
+"""What every task promises: determinism, reachable oracle actions, an object on target stays."""
 
 import pytest
 
