@@ -179,7 +179,6 @@ def test_lightning_test_writes_results_beside_the_checkpoint(fitted, tmp_path, c
     rate = f"{round(100 * successes / 2)}% (2, {low}-{high}) - {successes} of 2"
     assert f"test success: {rate}\n" in capsys.readouterr().out
 
-    capsys.readouterr()
     assert report_main([str(tmp_path)]) == 0
     table = capsys.readouterr().out
     assert "| tiny |" in table and "block-insertion Challenging" in table
