@@ -297,23 +297,26 @@ def fit_summary(trainer: Any) -> str:
     folder = Path(getattr(logger, "log_dir", None) or trainer.default_root_dir)
     lines = [f"run folder: {folder}"]
     checkpoint = trainer.checkpoint_callback
-    best = getattr(checkpoint, "best_model_path", "") or getattr(checkpoint, "last_model_path", "")
-    score = getattr(checkpoint, "best_model_score", None)
-    monitor = getattr(checkpoint, "monitor", None)
-    chosen = f" ({monitor} {float(score):.2f})" if monitor and score is not None else ""
     validation = [c for c in trainer.callbacks if isinstance(c, SuccessRateCallback)]
     folder_of_checkpoints = getattr(checkpoint, "dirpath", None)
+    record = None
     if validation and folder_of_checkpoints and Path(folder_of_checkpoints).is_dir():
         # the rule run-cell and evaluate-checkpoints choose by: among equals the later step
-        record = best_record(
-            validation_records(Path(folder_of_checkpoints), validation[0].episodes)
+        records = validation_records(Path(folder_of_checkpoints), validation[0].episodes)
+        record = best_record(records)
+    if record is not None:
+        best = record["checkpoint"]
+        chosen = (
+            f" (validation success {record['successes']}/{record['episodes']} at step "
+            f"{record['global_step']}, the latest of the best)"
         )
-        if record is not None:
-            best = record["checkpoint"]
-            chosen = (
-                f" (validation success {record['successes']}/{record['episodes']} at step "
-                f"{record['global_step']}, the latest of the best)"
-            )
+    else:
+        best = getattr(checkpoint, "best_model_path", "") or getattr(
+            checkpoint, "last_model_path", ""
+        )
+        score = getattr(checkpoint, "best_model_score", None)
+        monitor = getattr(checkpoint, "monitor", None)
+        chosen = f" ({monitor} {float(score):.2f})" if monitor and score is not None else ""
     if best:
         lines.append(f"best checkpoint{chosen}: {best}")
         saved = [c for c in trainer.callbacks if isinstance(c, SaveConfigCallback)]
