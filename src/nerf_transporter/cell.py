@@ -45,7 +45,7 @@ from nerf_transporter.evaluation.checkpoints import (
     evaluate_checkpoints,
     validation_records,
 )
-from nerf_transporter.evaluation.report import TASKS, cell, row_key
+from nerf_transporter.evaluation.report import TASKS, cell, column_folder, row_key
 from nerf_transporter.evaluation.testing import checkpoint_step, erred_episodes_text
 from nerf_transporter.methods import METHODS
 
@@ -176,8 +176,7 @@ def protocol_id(protocol: dict[str, Any]) -> str:
 
 def cell_name(protocol: dict[str, Any]) -> tuple[str, str]:
     """(column folder `<task>[-<setting>]`, row `<method>[-oracle]`) of a cell."""
-    setting = protocol["setting"]
-    column = protocol["task"] if setting == "normal" else f"{protocol['task']}-{setting}"
+    column = column_folder(protocol["task"], protocol["setting"])
     return column, row_key(protocol["method"], protocol["imagery"])
 
 

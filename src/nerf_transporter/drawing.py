@@ -104,6 +104,50 @@ def _centred_text(image: np.ndarray, text: str, centre_x: int, baseline: int, sc
     )
 
 
+GRID: Colour = (225, 225, 225)
+INK: Colour = (40, 40, 40)
+
+
+def _fraction_axis(image: np.ndarray, box: tuple[int, int, int, int], scale: float):
+    """Grid lines and percent labels of a [0, 1] vertical axis in `box` (left, right, top,
+    bottom), drawn in place; returns the function from a fraction to its image row."""
+    left, right, top, bottom = box
+
+    def y_of(fraction: float) -> int:
+        return int(round(bottom - fraction * (bottom - top)))
+
+    for tick in np.linspace(0, 1, 6):
+        y = y_of(tick)
+        cv2.line(image, (left, y), (right, y), GRID, 1)
+        label = f"{100 * tick:.0f}%"
+        label_width = cv2.getTextSize(label, FONT, scale, 1)[0][0]
+        cv2.putText(image, label, (left - 8 - label_width, y + 5), FONT, scale, INK, 1, cv2.LINE_AA)
+    cv2.line(image, (left, bottom), (right, bottom), INK, 1)
+    return y_of
+
+
+def _series_colours(count: int) -> list[Colour]:
+    return [
+        tuple(int(c) for c in colour)
+        for colour in _colormap(np.linspace(0.05, 0.9, count)[None])[0]
+    ]
+
+
+def _title_and_legend(
+    image: np.ndarray, left: int, title: str, series: Sequence[str], scale: float
+) -> int:
+    """The title and one colour swatch per series along the top, in place; returns the x after the
+    legend."""
+    if title:
+        cv2.putText(image, title, (left, 24), FONT, 0.6, (20, 20, 20), 1, cv2.LINE_AA)
+    x = left
+    for colour, name in zip(_series_colours(len(series)), series, strict=True):
+        cv2.rectangle(image, (x, 44), (x + 14, 58), colour, cv2.FILLED)
+        cv2.putText(image, name, (x + 20, 56), FONT, scale, INK, 1, cv2.LINE_AA)
+        x += 20 + cv2.getTextSize(name, FONT, scale, 1)[0][0] + 24
+    return x
+
+
 def bar_chart(
     groups: Sequence[str],
     series: Sequence[str],
@@ -132,20 +176,8 @@ def bar_chart(
     image = np.full((height, width, 3), 255, dtype=np.uint8)
     left, right, top, bottom = 60, width - 20, 80, height - 50
     scale = 0.45
-
-    def y_of(fraction: float) -> int:
-        return int(round(bottom - fraction * (bottom - top)))
-
-    for tick in np.linspace(0, 1, 6):
-        y = y_of(tick)
-        cv2.line(image, (left, y), (right, y), (225, 225, 225), 1)
-        label = f"{100 * tick:.0f}%"
-        label_width = cv2.getTextSize(label, FONT, scale, 1)[0][0]
-        cv2.putText(
-            image, label, (left - 8 - label_width, y + 5), FONT, scale, (40, 40, 40), 1, cv2.LINE_AA
-        )
-    cv2.line(image, (left, bottom), (right, bottom), (40, 40, 40), 1)
-    colours = _colormap(np.linspace(0.05, 0.9, len(series))[None])[0]
+    y_of = _fraction_axis(image, (left, right, top, bottom), scale)
+    colours = _series_colours(len(series))
     group_width = (right - left) / len(groups)
     bar_width = group_width * 0.8 / len(series)
     for g, group in enumerate(groups):
@@ -157,8 +189,7 @@ def bar_chart(
             if np.isnan(values[s, g]):
                 _centred_text(image, "-", centre, bottom - 4, scale)
             else:
-                colour = tuple(int(c) for c in colours[s])
-                cv2.rectangle(image, (x0, y_of(values[s, g])), (x1, bottom), colour, cv2.FILLED)
+                cv2.rectangle(image, (x0, y_of(values[s, g])), (x1, bottom), colours[s], cv2.FILLED)
                 y_low, y_high = y_of(low[s, g]), y_of(high[s, g])
                 cv2.line(image, (centre, y_low), (centre, y_high), (20, 20, 20), 1, cv2.LINE_AA)
                 for y in (y_low, y_high):
@@ -167,15 +198,47 @@ def bar_chart(
                 cv2.drawMarker(
                     image, (centre, y_of(markers[s, g])), (0, 0, 0), cv2.MARKER_DIAMOND, 10, 2
                 )
-    if title:
-        cv2.putText(image, title, (left, 24), FONT, 0.6, (20, 20, 20), 1, cv2.LINE_AA)
-    x = left
-    for s, name in enumerate(series):
-        colour = tuple(int(c) for c in colours[s])
-        cv2.rectangle(image, (x, 44), (x + 14, 58), colour, cv2.FILLED)
-        cv2.putText(image, name, (x + 20, 56), FONT, scale, (40, 40, 40), 1, cv2.LINE_AA)
-        x += 20 + cv2.getTextSize(name, FONT, scale, 1)[0][0] + 24
+    x = _title_and_legend(image, left, title, series, scale)
     if marker_label:
         cv2.drawMarker(image, (x + 7, 51), (0, 0, 0), cv2.MARKER_DIAMOND, 10, 2)
-        cv2.putText(image, marker_label, (x + 20, 56), FONT, scale, (40, 40, 40), 1, cv2.LINE_AA)
+        cv2.putText(image, marker_label, (x + 20, 56), FONT, scale, INK, 1, cv2.LINE_AA)
+    return image
+
+
+def line_chart(
+    series: Sequence[str],
+    x_values: Sequence[Sequence[float]],
+    fractions: Sequence[Sequence[float]],
+    *,
+    title: str = "",
+    x_label: str = "",
+    size: tuple[int, int] = (480, 800),
+) -> np.ndarray:
+    """One polyline with dots per series of fractions in [0, 1] against x (RGB uint8 [H, W, 3]);
+    the x axis runs from 0 to the largest x, series are told apart by colour, named in a legend."""
+    if not (len(series) == len(x_values) == len(fractions)):
+        raise ValueError("series, x_values and fractions must have one entry per series")
+    if any(len(xs) != len(ys) for xs, ys in zip(x_values, fractions, strict=True)):
+        raise ValueError("each series needs as many x values as fractions")
+    x_max = max((max(xs) for xs in x_values if len(xs)), default=0) or 1
+    height, width = size
+    image = np.full((height, width, 3), 255, dtype=np.uint8)
+    left, right, top, bottom = 60, width - 30, 80, height - 50
+    scale = 0.45
+    y_of = _fraction_axis(image, (left, right, top, bottom), scale)
+
+    def x_of(value: float) -> int:
+        return int(round(left + value / x_max * (right - left)))
+
+    for tick in np.linspace(0, x_max, 5):
+        _centred_text(image, f"{tick:g}", x_of(tick), bottom + 20, scale)
+    if x_label:
+        _centred_text(image, x_label, (left + right) // 2, bottom + 40, scale)
+    for colour, xs, ys in zip(_series_colours(len(series)), x_values, fractions, strict=True):
+        points = np.array([(x_of(x), y_of(y)) for x, y in zip(xs, ys, strict=True)], dtype=np.int32)
+        if len(points) > 1:
+            cv2.polylines(image, [points], False, colour, 2, cv2.LINE_AA)
+        for point in points:
+            cv2.circle(image, tuple(int(v) for v in point), 4, colour, cv2.FILLED, cv2.LINE_AA)
+    _title_and_legend(image, left, title, series, scale)
     return image

@@ -129,13 +129,17 @@ def test_report_csv(logs, capsys):
     assert lines[4] == 'Transporter-SE(2),"25% (20, 11-47)",,,,,"100% (20, 84-100)"'
 
 
-def write_cell(root, row, task, setting, successes, episodes, imagery=None):
+def write_cell(root, row, task, setting, successes, episodes, imagery=None, validation=None):
     """A cell as run-cell writes it (the fields the report reads, and its protocol)."""
     column = task if setting == "normal" else f"{task}-{setting}"
     low, high = wilson_interval(successes, episodes)
     method = row.removesuffix("-oracle")
+    protocol = {"task": task, "setting": setting, "method": method, "imagery": imagery}
+    protocol |= {"steps": 2000, "batch_size": 1, "lr": 1e-4, "validation_every": 500}
+    protocol |= {"validation_episodes": 10, "test_episodes": episodes}
     record = {
-        "protocol": {"task": task, "setting": setting, "method": method, "imagery": imagery},
+        "protocol": protocol,
+        "validation": [{"step": step, "success_rate": rate} for step, rate in validation or ()],
         "task": task,
         "setting": setting,
         "method": method,
@@ -154,7 +158,8 @@ def write_cell(root, row, task, setting, successes, episodes, imagery=None):
 
 def test_cells_of_a_results_folder_fill_their_rows_the_plot_and_the_readme(tmp_path, capsys):
     results = tmp_path / "results"
-    write_cell(results, "mira", "block-insertion", "normal", 81, 100, imagery="nerf")
+    curve = [(500, 0.2), (1000, 0.5), (1500, 0.7), (2000, 0.6)]
+    write_cell(results, "mira", "block-insertion", "normal", 81, 100, "nerf", curve)
     write_cell(results, "mira-oracle", "block-insertion", "normal", 90, 100, imagery="oracle")
     write_cell(results, "form2fit", "place-red-in-green", "challenging", 30, 100)
     readme = tmp_path / "README.md"
@@ -172,6 +177,15 @@ def test_cells_of_a_results_folder_fill_their_rows_the_plot_and_the_readme(tmp_p
     assert "old text" not in text and "3 of 30 cells measured" in text
     assert "| mira, oracle imagery | 90% (100, 83-94) |" in text
     assert "![results table as bars](results/table1.png)" in text
+    budget = "--steps 2000 --batch-size 1 --lr 0.0001 --val-every 500 --val-episodes 10"
+    assert (
+        f"    nerf-transporter run-cell --task block-insertion --method mira {budget} "
+        "--episodes 100 --force\n"
+        f"    nerf-transporter run-cell --task block-insertion --method mira --imagery oracle "
+        f"{budget} --episodes 100 --force\n"
+        f"    nerf-transporter run-cell --task place-red-in-green --setting challenging "
+        f"--method form2fit {budget} --episodes 100 --force\n"
+    ) in text
     image = cv2.cvtColor(cv2.imread(str(plot)), cv2.COLOR_BGR2RGB)
     empty = table_plot([])
     assert image.shape == empty.shape
@@ -208,3 +222,23 @@ def test_report_names_a_corrupt_results_file(logs, capsys):
     bad.write_text("{not json")
     assert report_main([str(logs)]) == 1
     assert str(bad) in capsys.readouterr().err
+
+
+def test_validation_plots_draw_one_line_per_cell_that_holds_its_rounds(tmp_path):
+    results = tmp_path / "results"
+    write_cell(
+        results, "mira", "block-insertion", "normal", 81, 100, "nerf", [(500, 0.2), (1000, 1.0)]
+    )
+    write_cell(results, "form2fit", "block-insertion", "normal", 30, 100)  # no rounds: no line
+    docs = tmp_path / "docs"
+    assert report_main([str(results), "--validation-plots", str(docs)]) == 0
+    assert [path.name for path in docs.iterdir()] == ["validation-block-insertion.png"]
+    image = cv2.cvtColor(
+        cv2.imread(str(docs / "validation-block-insertion.png")), cv2.COLOR_BGR2RGB
+    )
+    mira = image[51, 67]  # the legend's one swatch
+    drawn = (image[70:] == mira).all(axis=2)
+    rows, cols = drawn.nonzero()
+    # the line rises from 20% at step 500 (mid-plot) to 100% at the right end
+    assert cols.min() > image.shape[1] * 0.4 and cols.max() > image.shape[1] * 0.9
+    assert rows[cols.argmax()] < rows[cols.argmin()]

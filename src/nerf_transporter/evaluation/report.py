@@ -8,7 +8,9 @@ its own) and one column per task/setting; a cell reads "rate% (n, CI)" with the 
 in percent, and is empty where no run exists. Where several records exist for one cell, the newest
 wins. Below each of our rows, the paper's Table 1 value of that method (`evaluation/paper.py`).
 `--plot` draws the table as bars with their intervals and the paper's values as markers;
-`--readme` rewrites the README's results block (between `README_START` and `README_END`).
+`--validation-plots DIR` draws each column's validation success against training steps (the budget
+study, `docs/budget.md`); `--readme` rewrites the README's results block (between `README_START` and
+`README_END`), with the run-cell command of each measured cell.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import cv2
 import numpy as np
 
 from nerf_transporter.console import HelpFormatter
-from nerf_transporter.drawing import bar_chart
+from nerf_transporter.drawing import bar_chart, line_chart
 from nerf_transporter.evaluation.paper import PAPER_COLUMNS, PAPER_SUCCESS
 
 RESULTS_GLOB = "results*.json"
@@ -71,6 +73,11 @@ def load_results(roots: list[Path]) -> list[dict]:
                 raise ValueError(f"results file {path} lacks {', '.join(missing)}")
             records.append(record | {"path": str(path)})
     return records
+
+
+def column_folder(task: str, setting: str) -> str:
+    """The folder of a column's cells under `results/`, `<task>[-<setting>]`."""
+    return task if setting == "normal" else f"{task}-{setting}"
 
 
 def column_name(task: str, setting: str) -> str:
@@ -162,6 +169,69 @@ def table_plot(records: list[dict]) -> np.ndarray:
     )
 
 
+# run-cell's budget options and the protocol keys they set, in the order a command lists them
+BUDGET_OPTIONS = (
+    ("--steps", "steps"),
+    ("--batch-size", "batch_size"),
+    ("--lr", "lr"),
+    ("--val-every", "validation_every"),
+    ("--val-episodes", "validation_episodes"),
+    ("--episodes", "test_episodes"),
+)
+
+
+def run_cell_command(protocol: dict) -> str:
+    """The `nerf-transporter run-cell` command that measures a cell of `protocol` again."""
+    words = ["nerf-transporter run-cell", f"--task {protocol['task']}"]
+    if protocol["setting"] != "normal":
+        words.append(f"--setting {protocol['setting']}")
+    words.append(f"--method {protocol['method']}")
+    if protocol.get("imagery") == "oracle":
+        words.append("--imagery oracle")
+    words += [f"{option} {protocol[key]:g}" for option, key in BUDGET_OPTIONS]
+    return " ".join(words)
+
+
+def _in_table_order(records: list[dict]) -> list[tuple[str, dict]]:
+    """(row, record) of each newest cell, by row as in the table, then column."""
+    newest = newest_records(records)
+    keys = sorted(newest, key=lambda key: (_rank(key[0], tuple(METHODS)), key[1:]))
+    return [(key[0], newest[key]) for key in keys]
+
+
+def cell_commands(records: list[dict]) -> list[str]:
+    """The run-cell command of each newest cell that holds its protocol, in table order."""
+    return [
+        run_cell_command(record["protocol"])
+        for _, record in _in_table_order(records)
+        if all(key in record.get("protocol", {}) for _, key in BUDGET_OPTIONS)
+    ]
+
+
+def validation_curves(records: list[dict]) -> dict[tuple[str, str], list[tuple[str, dict]]]:
+    """(task, setting) -> (row, cell) of the newest cells of that column that hold their
+    validation rounds, in table order."""
+    curves: dict[tuple[str, str], list[tuple[str, dict]]] = {}
+    for row, record in _in_table_order(records):
+        if record.get("validation"):
+            curves.setdefault((record["task"], record["setting"]), []).append((row, record))
+    return curves
+
+
+def validation_plot(task: str, setting: str, cells: list[tuple[str, dict]]) -> np.ndarray:
+    """Closed-loop validation success against training steps, one line per (row, cell) of a
+    column; RGB uint8."""
+    episodes = {record.get("protocol", {}).get("validation_episodes") for _, record in cells}
+    per_round = "/".join(str(n) for n in sorted(episodes - {None}))
+    return line_chart(
+        [METHODS.get(row, row) for row, _ in cells],
+        [[entry["step"] for entry in record["validation"]] for _, record in cells],
+        [[entry["success_rate"] for entry in record["validation"]] for _, record in cells],
+        title=f"{column_name(task, setting)}: validation success ({per_round} episodes a round)",
+        x_label="training step",
+    )
+
+
 def readme_block(records: list[dict]) -> str:
     """The README's results block (without its markers): how many cells are measured, the table,
     and the plot where any cell is."""
@@ -186,6 +256,13 @@ def readme_block(records: list[dict]) -> str:
     ]
     if count:
         lines += ["", "![results table as bars](results/table1.png)"]
+    commands = cell_commands(records)
+    if commands:
+        lines += [
+            "",
+            "Each measured cell is remeasured from scratch by (its protocol, as recorded):",
+        ]
+        lines += ["", *(f"    {command} --force" for command in commands)]
     return "\n".join(lines) + "\n"
 
 
@@ -214,6 +291,14 @@ def csv_text(header: list[str], rows: list[list[str]]) -> str:
     return buffer.getvalue()
 
 
+def _write_png(path: Path, image: np.ndarray) -> bool:
+    """Write an RGB image; False, with the reason printed, where it cannot be written."""
+    if cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+        return True
+    print(f"nerf-transporter report: could not write {path}", file=sys.stderr)
+    return False
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="nerf-transporter report",
@@ -227,6 +312,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--csv", action="store_true", help="CSV instead of a markdown table")
     parser.add_argument(
         "--plot", type=Path, help="also draw the table as bars into this PNG (results/table1.png)"
+    )
+    parser.add_argument(
+        "--validation-plots",
+        type=Path,
+        help="also draw each column's validation success against steps into "
+        "<this folder>/validation-<column>.png (docs/)",
     )
     parser.add_argument(
         "--readme",
@@ -252,9 +343,14 @@ def main(argv: list[str] | None = None) -> int:
         )
     if args.plot:
         args.plot.parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(args.plot), cv2.cvtColor(table_plot(records), cv2.COLOR_RGB2BGR)):
-            print(f"nerf-transporter report: could not write {args.plot}", file=sys.stderr)
+        if not _write_png(args.plot, table_plot(records)):
             return 1
+    if args.validation_plots:
+        args.validation_plots.mkdir(parents=True, exist_ok=True)
+        for (task, setting), cells in validation_curves(records).items():
+            path = args.validation_plots / f"validation-{column_folder(task, setting)}.png"
+            if not _write_png(path, validation_plot(task, setting, cells)):
+                return 1
     header, rows = results_table(records)
     sys.stdout.write(csv_text(header, rows) if args.csv else markdown(header, rows))
     return 0
