@@ -6,6 +6,10 @@ tensors of the documented batch layout (the step time does not depend on the con
 
     python benchmarks/train_step.py [--json] [--width 16] [--repeats 3] [--device cpu] [--threads 1]
 
+Each step's floating-point operations (forward + backward, counted once by
+`torch.utils.flop_counter`) are reported beside its time, with the rate achieved: where that rate is
+near the processor's peak, only fewer operations make the step faster.
+
 On a CPU shared with other processes, two OpenMP threads can be ~10x slower than one (measured:
 mira step 21 s with 2 threads vs 2.5 s with 1 at load average 3); compare figures at equal load.
 """
@@ -20,6 +24,7 @@ import time
 
 import numpy as np
 import torch
+from torch.utils.flop_counter import FlopCounterMode
 
 from nerf_transporter import geometry as g
 from nerf_transporter.device_info import describe_device, device_line
@@ -73,6 +78,15 @@ def time_steps(method: Method, batch: dict, repeats: int, device: torch.device) 
     return statistics.median(times[1:])
 
 
+def step_gflop(method: Method, batch: dict, device: torch.device) -> float:
+    """Floating-point operations of one forward + backward pass, in GFLOP."""
+    batch = {key: value.to(device) for key, value in batch.items()}
+    with FlopCounterMode(display=False) as counter:
+        method.losses(batch)["loss"].backward()
+    method.zero_grad(set_to_none=True)
+    return counter.get_total_flops() / 1e9
+
+
 def time_mira_act(method: Method, repeats: int, device: torch.device) -> float:
     views = g.view_grid("normal")
     rng = np.random.default_rng(0)
@@ -118,6 +132,7 @@ def main() -> None:
         "crop_size": 64,
         "negative_views": args.negative_views,
         "step_seconds": {},
+        "step_gflop": {},
     }
     for name in args.methods:
         cls = METHODS[name]
@@ -128,13 +143,18 @@ def main() -> None:
         if cls.input_kind != "state":
             results["width"] = method.hparams["width"]
         batch = full_size_batch(cls.input_kind, args.negative_views, device)
+        results["step_gflop"][name] = round(step_gflop(method, batch, device), 3)
         results["step_seconds"][name] = round(time_steps(method, batch, args.repeats, device), 4)
         if name == "mira":
             results["mira_act_49_views_seconds"] = round(
                 time_mira_act(method, args.repeats, device), 4
             )
         if not args.json:
-            print(f"{name:<16} step {results['step_seconds'][name]:.3f} s", flush=True)
+            seconds, gflop = results["step_seconds"][name], results["step_gflop"][name]
+            print(
+                f"{name:<16} step {seconds:.3f} s  {gflop:.3g} GFLOP  {gflop / seconds:.3g} GFLOP/s",
+                flush=True,
+            )
     results["load_average_after"] = os.getloadavg()[0]
     if args.json:
         print(json.dumps(results, indent=2))
