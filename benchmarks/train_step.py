@@ -7,8 +7,9 @@ tensors of the documented batch layout (the step time does not depend on the con
     python benchmarks/train_step.py [--json] [--width 16] [--repeats 3] [--device cpu] [--threads 1]
 
 Each step's floating-point operations (forward + backward, counted once by
-`torch.utils.flop_counter`) are reported beside its time, with the rate achieved: where that rate is
-near the processor's peak, only fewer operations make the step faster.
+`torch.utils.flop_counter`: convolutions and matrix products, not the FFTs) are reported beside its
+time, with the rate achieved: where that rate is near the processor's peak, only fewer operations
+make the step faster.
 
 On a CPU shared with other processes, two OpenMP threads can be ~10x slower than one (measured:
 mira step 21 s with 2 threads vs 2.5 s with 1 at load average 3); compare figures at equal load.
