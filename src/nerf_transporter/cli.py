@@ -343,6 +343,10 @@ def quiet_lightning() -> None:
     # validation losses are optional (data.n_val_demos); success is measured closed loop
     warnings.filterwarnings("ignore", message=r".*but have no `val_dataloader`")
     warnings.filterwarnings("ignore", message=r"Total length of `list` across ranks is zero")
+    # RavensDataModule resumes mid-epoch itself (its sampler skips the batches already trained)
+    warnings.filterwarnings(
+        "ignore", message=r"You're resuming from a checkpoint that ended before"
+    )
 
 
 def lightning_main(args: list[str] | None = None) -> int:

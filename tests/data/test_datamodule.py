@@ -1,15 +1,18 @@
 import json
 from types import SimpleNamespace
 
+import lightning.pytorch as pl
 import numpy as np
 import pytest
 import torch
+from lightning.pytorch.callbacks import ModelCheckpoint
 
 from nerf_transporter import geometry as g
 from nerf_transporter.data import episode as ep
 from nerf_transporter.data import generate as gen
 from nerf_transporter.data.datamodule import RavensDataModule, sample_negative_views
 from nerf_transporter.data.preprocess import COLOUR_MEAN, COLOUR_STD
+from nerf_transporter.methods import GTStateMLP
 from tests.helpers.fake_sim import MARK, PIXEL, changed_world
 
 H, W = g.image_shape(PIXEL)
@@ -186,3 +189,30 @@ def test_edited_label_is_not_trained_on(fake_world, tmp_path):
     (path / "meta.json").write_text(json.dumps(meta))
     with pytest.raises(ep.CorruptEpisodeError, match=rf"{path.name}: meta\.json does not match"):
         module.setup("fit")
+
+
+def test_a_fit_resumed_mid_epoch_trains_as_the_uninterrupted_fit(fake_world, tmp_path):
+    """3 batches an epoch; the checkpoint at step 4 lies inside epoch 1: resumed from it, the fit
+    must see the rest of epoch 1's samples, not that epoch from its start again."""
+    make(tmp_path, input_kind="state").prepare_data()
+
+    def fit(max_steps: int, ckpt_path=None, checkpoints=None) -> GTStateMLP:
+        pl.seed_everything(0)
+        model = GTStateMLP(state_dim=14)
+        callbacks = [ModelCheckpoint(checkpoints, every_n_train_steps=2, save_top_k=-1)]
+        trainer = pl.Trainer(
+            max_steps=max_steps,
+            logger=False,
+            enable_progress_bar=False,
+            enable_model_summary=False,
+            callbacks=callbacks if checkpoints else [],
+            enable_checkpointing=bool(checkpoints),
+        )
+        trainer.fit(model, datamodule=make(tmp_path, input_kind="state"), ckpt_path=ckpt_path)
+        return model
+
+    straight = fit(6, checkpoints=tmp_path / "checkpoints")
+    (mid_epoch,) = (tmp_path / "checkpoints").glob("*step=4.ckpt")
+    resumed = fit(6, ckpt_path=mid_epoch)
+    for name, value in straight.state_dict().items():
+        torch.testing.assert_close(resumed.state_dict()[name], value, msg=name)

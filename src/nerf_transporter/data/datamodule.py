@@ -10,7 +10,9 @@ The model's `input_kind` picks the batch layout:
 - `state` (gt_state_mlp): the state vector and the oracle pick and place poses.
 
 Every random choice of a sample (SE(2) augmentation, negative views) comes from a seed the sampler
-draws from (seed, epoch, position), so batches do not depend on the number of worker processes.
+draws from (seed, epoch, position), so batches do not depend on the number of worker processes,
+and a fit resumed from a checkpoint saved mid-epoch trains on the rest of that epoch's samples, as
+the uninterrupted fit would have.
 """
 
 from __future__ import annotations
@@ -93,14 +95,22 @@ def load_demo(path: Path, input_kind: str, grid: np.ndarray, pixel_size: float) 
 
 
 class SeededSampler(Sampler):
-    """Yields (demo index, sample seed) pairs: `length` per epoch, demos in shuffled passes."""
+    """Yields (demo index, sample seed) pairs: `length` per epoch, demos in shuffled passes.
+
+    `resume_at(epoch, start)` makes the next pass over `epoch` begin at position `start` (the
+    samples before it were trained on before the fit was interrupted); its length stays `length`.
+    """
 
     def __init__(self, n_demos: int, length: int, seed: int, shuffle: bool = True) -> None:
         self.n_demos, self.length, self.seed, self.shuffle = n_demos, length, seed, shuffle
         self.epoch = 0
+        self.resume: tuple[int, int] | None = None
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
+
+    def resume_at(self, epoch: int, start: int) -> None:
+        self.resume = (epoch, start) if 0 < start < self.length else None
 
     def __len__(self) -> int:
         return self.length
@@ -114,7 +124,9 @@ class SeededSampler(Sampler):
         ]
         demos = np.concatenate(order)[: self.length]
         seeds = rng.integers(0, 2**63 - 1, size=self.length)
-        return iter(zip(demos.tolist(), seeds.tolist(), strict=True))
+        start = self.resume[1] if self.resume and self.resume[0] == self.epoch else 0
+        self.resume = None
+        return iter(zip(demos[start:].tolist(), seeds[start:].tolist(), strict=True))
 
 
 def sample_negative_views(
@@ -405,9 +417,11 @@ class RavensDataModule(pl.LightningDataModule):
         if self.train_dataset is None:
             self.setup("fit")
         length = self.samples_per_epoch or len(self.train_dataset)
-        return self._loader(
-            self.train_dataset, SeededSampler(len(self.train_dataset), length, self.seed)
-        )
+        sampler = SeededSampler(len(self.train_dataset), length, self.seed)
+        if self.trainer is not None:  # a resumed fit: skip the epoch's batches already trained
+            trained = self.trainer.fit_loop.epoch_loop.batch_progress.current.processed
+            sampler.resume_at(self.trainer.current_epoch, trained * self.batch_size)
+        return self._loader(self.train_dataset, sampler)
 
     def val_dataloader(self) -> DataLoader | list:
         if self.n_val_demos == 0:
