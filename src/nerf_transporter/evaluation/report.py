@@ -100,6 +100,11 @@ def _rank(value: str, known: tuple[str, ...]) -> tuple[int, str]:
     return (known.index(value), "") if value in known else (len(known), value)
 
 
+def _column_order(column: tuple[str, str]) -> tuple:
+    """Sort key of a (task, setting) column: tasks, then settings, in their listed order."""
+    return _rank(column[0], TASKS), _rank(column[1], SETTINGS)
+
+
 def newest_records(records: list[dict]) -> dict[tuple[str, str, str], dict]:
     """(row, task, setting) -> the newest record of that cell (`row_key` names the row)."""
     newest: dict[tuple[str, str, str], dict] = {}
@@ -114,9 +119,7 @@ def results_table(records: list[dict]) -> tuple[list[str], list[list[str]]]:
     rows the paper's values of that method (empty cells where it has none)."""
     newest = newest_records(records)
     extra = {(task, setting) for _, task, setting in newest} - set(COLUMNS)
-    columns = list(COLUMNS) + sorted(
-        extra, key=lambda column: (_rank(column[0], TASKS), _rank(column[1], SETTINGS))
-    )
+    columns = list(COLUMNS) + sorted(extra, key=_column_order)
     found = {row for row, _, _ in newest}
     methods = list(METHODS) + sorted(found - set(METHODS))
     header = ["method"] + [column_name(task, setting) for task, setting in columns]
@@ -195,7 +198,7 @@ def run_cell_command(protocol: dict) -> str:
 def _in_table_order(records: list[dict]) -> list[tuple[str, dict]]:
     """(row, record) of each newest cell, by row as in the table, then column."""
     newest = newest_records(records)
-    keys = sorted(newest, key=lambda key: (_rank(key[0], tuple(METHODS)), key[1:]))
+    keys = sorted(newest, key=lambda key: (_rank(key[0], tuple(METHODS)), _column_order(key[1:])))
     return [(key[0], newest[key]) for key in keys]
 
 
