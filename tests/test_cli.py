@@ -347,7 +347,8 @@ def test_a_pickled_payload_behind_a_url_is_refused(tmp_path, capsys, monkeypatch
 @pytest.mark.parametrize("config", TASK_CONFIGS[:5], ids=lambda p: p.stem)
 def test_gpu_overlays_stack_on_task_and_method_configs(config):
     overlays = [
-        REPO / "configs/gpu" / name for name in ("h100.yaml", "bf16.yaml", "no_pybullet.yaml")
+        REPO / "configs/gpu" / name
+        for name in ("h100.yaml", "width64.yaml", "bf16.yaml", "no_pybullet.yaml")
     ]
     argv = ["--config", str(config), "--config", str(REPO / "configs/model/transporter_se3.yaml")]
     argv += [arg for overlay in overlays for arg in ("--config", str(overlay))]
@@ -361,6 +362,21 @@ def test_gpu_overlays_stack_on_task_and_method_configs(config):
     assert not [c for c in cli.trainer.callbacks if type(c).__name__ == "SuccessRateCallback"]
     names = [type(c).__name__ for c in cli.trainer.callbacks]
     assert names.count("ClosedLoopTestCallback") == 1  # `lightning test` still plays the seeds
+
+
+def test_gpu_machine_overlays_stack_on_the_state_method():
+    """h100.yaml, bf16.yaml and no_pybullet.yaml set nothing GT-State MLP lacks (width is apart)."""
+    argv = [
+        "--config",
+        str(TASK_CONFIGS[0]),
+        "--config",
+        str(REPO / "configs/model/gt_state_mlp.yaml"),
+    ]
+    for name in ("h100.yaml", "bf16.yaml", "no_pybullet.yaml"):
+        argv += ["--config", str(REPO / "configs/gpu" / name)]
+    cli = build_cli([*argv, "--trainer.accelerator", "cpu"], run=False)
+    assert type(cli.model).__name__ == "GTStateMLP"
+    assert (cli.datamodule.num_workers, cli.datamodule.pin_memory) == (8, True)
 
 
 @pytest.mark.parametrize("name", list(METHODS))

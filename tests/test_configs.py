@@ -154,7 +154,7 @@ def test_method_overlays_keep_the_task_settings(task_config):
 
 def test_gpu_overlays_change_only_where_and_how_fast():
     base, _ = resolve("quick/hanging_disks.yaml", "model/transporter_se3.yaml")
-    stacked = ("gpu/h100.yaml", "gpu/bf16.yaml", "gpu/no_pybullet.yaml")
+    stacked = ("gpu/h100.yaml", "gpu/width64.yaml", "gpu/bf16.yaml", "gpu/no_pybullet.yaml")
     config, cli = resolve(
         "quick/hanging_disks.yaml",
         "model/transporter_se3.yaml",
