@@ -42,6 +42,7 @@ from nerf_transporter import geometry as g
 from nerf_transporter.data.heightmap import heightmap_from_rgbd
 from nerf_transporter.data.labels import Action, action_from_labels, heightmap_labels
 from nerf_transporter.device_info import cpu_model
+from nerf_transporter.evaluation.failures import carried_pose
 from nerf_transporter.evaluation.metrics import wilson_interval
 from nerf_transporter.sim import TASKS, make_env
 from nerf_transporter.sim.env import RavensEnv
@@ -120,8 +121,7 @@ def aim(env: RavensEnv, action: Action) -> dict:
     block's centre from the fixture's centre (`aim_offset_mm`), its component downhill along the
     fixture's slope (`aim_downhill_mm`, negative: uphill) and the yaw error of the block."""
     target = env.task.target_poses[0]
-    object_pose = env.task.object_pose(env)
-    carried = g.multiply_poses(action["place"], g.invert_pose(action["pick"]), object_pose)
+    carried = carried_pose(env.task.object_pose(env), action)
     offset = (np.asarray(carried[0]) - np.asarray(target[0]))[:2]
     normal = g.quat_to_matrix(target[1])[:2, 2]
     slope = np.linalg.norm(normal)

@@ -40,6 +40,10 @@ TOOLS: dict[str, tuple[str, str]] = {
         "nerf_transporter.cell:main",
         "one cell of the results table: fit, pick by validation, test, write its JSON",
     ),
+    "failures": (
+        "nerf_transporter.evaluation.failures:main",
+        "why the cells' test episodes failed: pick, aim (position / tilt / yaw) or settling",
+    ),
     "evaluate-checkpoints": (
         "nerf_transporter.evaluation.checkpoints:main",
         "closed-loop success of every checkpoint of a run, to pick the one to test",

@@ -195,7 +195,7 @@ def run_cell_command(protocol: dict) -> str:
     return " ".join(words)
 
 
-def _in_table_order(records: list[dict]) -> list[tuple[str, dict]]:
+def in_table_order(records: list[dict]) -> list[tuple[str, dict]]:
     """(row, record) of each newest cell, by row as in the table, then column."""
     newest = newest_records(records)
     keys = sorted(newest, key=lambda key: (_rank(key[0], tuple(METHODS)), _column_order(key[1:])))
@@ -206,7 +206,7 @@ def cell_commands(records: list[dict]) -> list[str]:
     """The run-cell command of each newest cell that holds its protocol, in table order."""
     return [
         run_cell_command(record["protocol"])
-        for _, record in _in_table_order(records)
+        for _, record in in_table_order(records)
         if all(key in record.get("protocol", {}) for _, key in BUDGET_OPTIONS)
     ]
 
@@ -215,7 +215,7 @@ def validation_curves(records: list[dict]) -> dict[tuple[str, str], list[tuple[s
     """(task, setting) -> (row, cell) of the newest cells of that column that hold their
     validation rounds, in table order."""
     curves: dict[tuple[str, str], list[tuple[str, dict]]] = {}
-    for row, record in _in_table_order(records):
+    for row, record in in_table_order(records):
         if record.get("validation"):
             curves.setdefault((record["task"], record["setting"]), []).append((row, record))
     return curves

@@ -1,0 +1,340 @@
+"""`nerf-transporter failures results/`: why the test episodes of the results table's cells failed.
+
+Each test episode of a cell (`run-cell`'s JSON records every episode's action) is replayed up to
+its action: the seed's scene is reset, no policy and no imagery, and the recorded action is judged
+before the robot moves. A failed episode falls in one class:
+
+- `picked another body`: the top-down pixel under the pick shows something other than the object
+  (the fixture, a distractor, the table), which the suction meets first on its way down;
+- `aimed off`: the object, carried rigidly from the pick pose to the place pose
+  (`carried_pose`: place . inv(pick) . object, the inverse of the oracle's place), misses every
+  target under the task's tolerance (`Tolerance`, docs/conventions.md). The position error is
+  taken across the place's approach axis, since the place motion descends along that axis until
+  the object touches something (an error along it does not count). `missed` says which of
+  position, tilt and yaw were out of tolerance (an episode can miss several);
+- `aimed within tolerance`: the aim was right and the object did not settle there (it slid,
+  bounced or tipped on release); those whose object ended more than 5 cm from the target (the
+  cell's recorded pose error) left the target altogether;
+- the rollout's own reason where the robot failed in motion (a pose unreachable, a timeout, a pick
+  that touched nothing).
+
+Erred episodes (not counted in a cell's rate) are counted apart. Successes whose aim was off count
+too: how often the world forgives an aim (block-insertion's flat placements, docs/six_dof.md).
+A second table gives success against the tilt of the target aimed at (its normal from the
+vertical).
+The scenes are this checkout's: a cell measured in another world (its `world` fingerprint) is
+refused, since its seeds would build other scenes here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+from collections import Counter
+from collections.abc import Mapping
+from itertools import pairwise
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nerf_transporter import geometry
+from nerf_transporter.atomic import write_json
+from nerf_transporter.console import HelpFormatter, progress_bar
+from nerf_transporter.evaluation.report import (
+    METHODS,
+    column_name,
+    in_table_order,
+    load_results,
+    markdown,
+    row_key,
+)
+from nerf_transporter.evaluation.rollout import NOT_ACHIEVED
+from nerf_transporter.geometry import Pose
+from nerf_transporter.sim import make_env
+from nerf_transporter.sim.env import RavensEnv
+from nerf_transporter.sim.fingerprint import world_fingerprint
+from nerf_transporter.sim.tasks import Task
+
+PICKED_ANOTHER_BODY = "picked another body"
+AIMED_OFF = "aimed off"
+AIMED_WITHIN_TOLERANCE = "aimed within tolerance"
+POSE_PARTS = ("position", "tilt", "yaw")
+ENDED_AWAY_M = 0.05  # a failure whose object ended farther than this from its target left it
+TILT_BINS_DEG = (0, 10, 20, 30, 90)  # target tilt bins of the success-by-tilt table
+
+
+class FailureAnalysisError(ValueError):
+    """A cell that cannot be replayed here (no recorded actions, another world)."""
+
+
+def carried_pose(object_pose: Pose, action: Mapping[str, Pose]) -> Pose:
+    """Where `action` puts an object at `object_pose` if the suction holds it rigidly from the pick
+    pose to the place pose: place . inv(pick) . object."""
+    return geometry.multiply_poses(
+        action["place"], geometry.invert_pose(action["pick"]), object_pose
+    )
+
+
+def aim(task: Task, object_pose: Pose, action: Mapping[str, Pose]) -> dict[str, Any]:
+    """The carried object against the target it comes closest to matching: `missed` (the parts
+    out of tolerance, position taken across the place's approach axis), the errors (m, rad) and
+    `target_index`."""
+    carried = carried_pose(object_pose, action)
+    approach = geometry.quat_to_matrix(action["place"][1])[:, 2]
+    tolerance = task.tolerance
+    aims = []
+    for index, target in enumerate(task.target_poses):
+        check = tolerance.check(carried, target)
+        offset = np.asarray(carried[0]) - np.asarray(target[0])
+        across = float(np.linalg.norm(offset - (offset @ approach) * approach))
+        limits = {"position": tolerance.position, "tilt": tolerance.tilt, "yaw": tolerance.yaw}
+        errors = {"position": across, "tilt": check["tilt_error"], "yaw": check["yaw_error"]}
+        missed = [
+            part for part in POSE_PARTS if limits[part] is not None and errors[part] > limits[part]
+        ]
+        aims.append({"missed": missed, "errors": errors, "target_index": index})
+    return min(aims, key=lambda a: (bool(a["missed"]), a["errors"]["position"]))
+
+
+def _pose(values: list[float]) -> Pose:
+    return np.asarray(values[:3], dtype=float), np.asarray(values[3:], dtype=float)
+
+
+def classify(episode: Mapping[str, Any], picked_object: bool | None, aimed: dict | None) -> str:
+    """The class of one recorded episode (see the module docstring); `picked_object` and `aimed`
+    come from the replayed scene (None where the episode has no action)."""
+    if episode.get("error"):
+        return "erred"
+    if episode["success"]:
+        return "success"
+    if episode["failure"] != NOT_ACHIEVED:
+        return str(episode["failure"]).split(" (")[0]
+    if picked_object is False:
+        return PICKED_ANOTHER_BODY
+    if aimed is not None and aimed["missed"]:
+        return AIMED_OFF
+    return AIMED_WITHIN_TOLERANCE
+
+
+def diagnose_episode(env: RavensEnv, episode: Mapping[str, Any]) -> dict[str, Any]:
+    """One recorded episode replayed in `env` (of its task and setting) up to its action."""
+    picked_object, aimed, target_tilt = None, None, None
+    if episode.get("action"):
+        action = {key: _pose(values) for key, values in episode["action"].items()}
+        env.reset(seed=episode["seed"])
+        ids, _ = env.render_segmentation_top_down()
+        row, col = np.round(geometry.world_to_pixel(action["pick"][0])).astype(int)
+        inside = geometry.pixel_inside_image((row, col), ids.shape)
+        picked_object = bool(inside and ids[row, col] == env.task.object_id)
+        aimed = aim(env.task, env.task.object_pose(env), action)
+        target = env.task.target_poses[aimed["target_index"]]
+        normal_z = geometry.quat_to_matrix(target[1])[2, 2]
+        target_tilt = float(np.degrees(np.arccos(np.clip(normal_z, -1.0, 1.0))))
+    return {
+        "seed": episode["seed"],
+        "class": classify(episode, picked_object, aimed),
+        "picked_object": picked_object,
+        "aim": aimed,
+        "target_tilt_deg": target_tilt,
+        "ended_position_error": (episode.get("pose_error") or {}).get("position_error"),
+    }
+
+
+def diagnose_cell(record: Mapping[str, Any], progress: bool = True) -> list[dict[str, Any]]:
+    """Every test episode of a cell, replayed to its action: seed, class, whether the pick pixel
+    shows the object, and the aim (`aim`); episodes without an action get only their class."""
+    episodes = record.get("episode_results")
+    if not episodes:
+        raise FailureAnalysisError(
+            f"{record.get('path')}: no episode results (only run-cell's cells record them)"
+        )
+    if record.get("world") != world_fingerprint():
+        raise FailureAnalysisError(
+            f"{record.get('path')} was measured in world {record.get('world')}, this checkout's "
+            f"is {world_fingerprint()}: its seeds build other scenes here; analyse it at the "
+            f"commit it was measured at ({(record.get('git') or {}).get('commit')})"
+        )
+    env = make_env(record["task"], record["setting"])
+    label = (
+        f"{record['task']} {record['setting']} {row_key(record['method'], record.get('imagery'))}"
+    )
+    diagnoses = []
+    try:
+        with progress_bar(len(episodes), label, enabled=progress) as bar:
+            for episode in episodes:
+                diagnoses.append(diagnose_episode(env, episode))
+                bar.update()
+    finally:
+        env.close()
+    return diagnoses
+
+
+AIM_UNITS = (
+    ("position", 1000.0, "mm"),
+    ("tilt", 180.0 / np.pi, "deg"),
+    ("yaw", 180.0 / np.pi, "deg"),
+)
+
+
+def median_aim_errors(diagnoses: list[dict[str, Any]]) -> dict[str, float | None]:
+    """Median aim error per part over the diagnoses with an aim, in mm and degrees."""
+    aimed = [d["aim"]["errors"] for d in diagnoses if d["aim"] is not None]
+    return {
+        f"{part}_{unit}": statistics.median(e[part] * scale for e in aimed) if aimed else None
+        for part, scale, unit in AIM_UNITS
+    }
+
+
+def median_target_tilt(diagnoses: list[dict[str, Any]]) -> float | None:
+    """Median tilt (deg, normal from the vertical) of the targets the diagnoses aimed at."""
+    tilts = [d["target_tilt_deg"] for d in diagnoses if d["target_tilt_deg"] is not None]
+    return statistics.median(tilts) if tilts else None
+
+
+def summary(record: Mapping[str, Any], diagnoses: list[dict[str, Any]]) -> dict[str, Any]:
+    """Counts per class, the failures aimed off per missed part, successes aimed off, and the
+    median aim errors of successes and of failures (mm, deg)."""
+    classes = Counter(d["class"] for d in diagnoses)
+    successes = [d for d in diagnoses if d["class"] == "success"]
+    failures = [d for d in diagnoses if d["class"] not in ("success", "erred")]
+    missed = Counter(
+        part for d in failures if d["class"] == AIMED_OFF for part in d["aim"]["missed"]
+    )
+    return {
+        "path": record.get("path"),
+        "task": record["task"],
+        "setting": record["setting"],
+        "row": row_key(record["method"], record.get("imagery")),
+        "episodes": len(diagnoses),
+        "classes": dict(classes),
+        "aimed_off_missed": {part: missed[part] for part in POSE_PARTS},
+        "successes_aimed_off": sum(1 for d in successes if d["aim"] and d["aim"]["missed"]),
+        "median_aim_error": {
+            "successes": median_aim_errors(successes),
+            "failures": median_aim_errors(failures),
+        },
+        "aimed_within_tolerance_ended_away": sum(
+            1
+            for d in failures
+            if d["class"] == AIMED_WITHIN_TOLERANCE
+            and (d["ended_position_error"] or 0.0) > ENDED_AWAY_M
+        ),
+        "median_target_tilt_deg": {
+            "successes": median_target_tilt(successes),
+            "failures": median_target_tilt(failures),
+        },
+        "success_by_target_tilt": success_by_target_tilt(diagnoses),
+    }
+
+
+def success_by_target_tilt(diagnoses: list[dict[str, Any]]) -> dict[str, list[int]]:
+    """'<low>-<high>' deg (`TILT_BINS_DEG`) -> [successes, episodes] of the counted episodes whose
+    target tilt falls in that bin."""
+    counted = [d for d in diagnoses if d["class"] != "erred" and d["target_tilt_deg"] is not None]
+    bins = {}
+    for low, high in pairwise(TILT_BINS_DEG):
+        inside = [d for d in counted if low <= d["target_tilt_deg"] < high]
+        bins[f"{low}-{high}"] = [sum(d["class"] == "success" for d in inside), len(inside)]
+    return bins
+
+
+def _numbers_text(medians: dict[str, float | None]) -> str:
+    return " / ".join("-" if value is None else f"{value:.0f}" for value in medians.values())
+
+
+def summary_table(summaries: list[dict[str, Any]]) -> tuple[list[str], list[list[str]]]:
+    """One row per cell: episodes, successes (aimed off among them), the failure classes, the
+    median aim errors."""
+    header = [
+        "column",
+        "method",
+        "episodes",
+        "successes (aimed off)",
+        "picked another body",
+        "aimed off: position / tilt / yaw missed",
+        "aimed within tolerance (ended > 5 cm away)",
+        "failed in motion",
+        "erred",
+        "median aim error, successes (mm / deg / deg)",
+        "median aim error, failures",
+        "median target tilt, successes / failures (deg)",
+    ]
+    known = {"success", "erred", PICKED_ANOTHER_BODY, AIMED_OFF, AIMED_WITHIN_TOLERANCE}
+    rows = []
+    for entry in summaries:
+        classes, missed = entry["classes"], entry["aimed_off_missed"]
+        motion = {name: count for name, count in classes.items() if name not in known}
+        motion_text = "; ".join(f"{count} {name}" for name, count in sorted(motion.items()))
+        rows.append(
+            [
+                column_name(entry["task"], entry["setting"]),
+                METHODS.get(entry["row"], entry["row"]),
+                str(entry["episodes"]),
+                f"{classes.get('success', 0)} ({entry['successes_aimed_off']})",
+                str(classes.get(PICKED_ANOTHER_BODY, 0)),
+                f"{classes.get(AIMED_OFF, 0)}: "
+                + " / ".join(str(missed[part]) for part in POSE_PARTS),
+                f"{classes.get(AIMED_WITHIN_TOLERANCE, 0)} "
+                f"({entry['aimed_within_tolerance_ended_away']})",
+                motion_text or "0",
+                str(classes.get("erred", 0)),
+                _numbers_text(entry["median_aim_error"]["successes"]),
+                _numbers_text(entry["median_aim_error"]["failures"]),
+                _numbers_text(entry["median_target_tilt_deg"]),
+            ]
+        )
+    return header, rows
+
+
+def tilt_table(summaries: list[dict[str, Any]]) -> tuple[list[str], list[list[str]]]:
+    """One row per cell: successes / episodes per target-tilt bin."""
+    bins = [f"{low}-{high}" for low, high in pairwise(TILT_BINS_DEG)]
+    header = ["column", "method", *(f"target tilt {name} deg" for name in bins)]
+    rows = [
+        [
+            column_name(entry["task"], entry["setting"]),
+            METHODS.get(entry["row"], entry["row"]),
+            *("{}/{}".format(*entry["success_by_target_tilt"][name]) for name in bins),
+        ]
+        for entry in summaries
+    ]
+    return header, rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="nerf-transporter failures",
+        description="Why the test episodes of run-cell's cells failed: each episode's scene is "
+        "reset from its seed and its recorded action judged before the robot moves (picked another "
+        "body, aimed off in position / tilt / yaw, aimed within tolerance but did not settle, "
+        "failed in motion). Needs the world the cells were measured in.",
+        formatter_class=HelpFormatter,
+    )
+    parser.add_argument("roots", nargs="*", default=["results"], help="folders of cells")
+    parser.add_argument(
+        "--json", type=Path, help="also write every episode's diagnosis to this JSON file"
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    args = parser.parse_args(argv)
+    try:
+        cells = [r for r in load_results([Path(root) for root in args.roots]) if "protocol" in r]
+        records = [record for _, record in in_table_order(cells)]
+        if not records:
+            raise FailureAnalysisError(
+                f"no run-cell cells under {' '.join(args.roots)}; run `nerf-transporter run-cell` first"
+            )
+        analysed = []
+        for record in records:
+            diagnoses = diagnose_cell(record, progress=not args.no_progress)
+            analysed.append((summary(record, diagnoses), diagnoses))
+    except (OSError, ValueError) as error:
+        print(f"nerf-transporter failures: {error}", file=sys.stderr)
+        return 1
+    summaries = [entry for entry, _ in analysed]
+    sys.stdout.write(markdown(*summary_table(summaries)) + "\n" + markdown(*tilt_table(summaries)))
+    if args.json:
+        payload = [entry | {"episodes_diagnosed": diagnoses} for entry, diagnoses in analysed]
+        write_json(args.json, payload)
+    return 0
