@@ -114,7 +114,9 @@ def run(**options):
     return run_cell(**(arguments | options))
 
 
-def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol(fakes):
+def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol(
+    fakes, monkeypatch
+):
     fakes.interrupt_at = 4
     with pytest.raises(KeyboardInterrupt):
         run()
@@ -144,6 +146,7 @@ def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol
         "validation_every": 2,
         "validation_episodes": 4,
         "test_episodes": 3,
+        "model": {},
     }
     # the best validation round without errors; of two equal ones the later
     assert stored["checkpoint"] == {
@@ -170,6 +173,14 @@ def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol
     assert len(fakes.calls) == 2
     with pytest.raises(CellError, match="steps 8 there, 10 here"):
         run(steps=10)
+    legacy = stored | {"protocol": {k: v for k, v in stored["protocol"].items() if k != "model"}}
+    cell.write_text(json.dumps(legacy))  # written before the protocol had the model's entry
+    assert run() == (cell, None)
+    wider = {**CONFIG, "model": {"init_args": {"lr": 1.0e-4, "width": 64}}}
+    monkeypatch.setattr(cell_module, "resolve_config", lambda files: wider)
+    with pytest.raises(CellError, match=r"model \{\} there, \{'width': 64\} here"):
+        run()
+    monkeypatch.setattr(cell_module, "resolve_config", lambda files: CONFIG)
 
     created = stored["created"]
     time.sleep(1)

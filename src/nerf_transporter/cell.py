@@ -10,7 +10,8 @@ erred episodes are never chosen, ties go to the later step, as `evaluate-checkpo
 
 A cell's protocol is everything that decides its number but the code: task, setting, method,
 imagery, demonstrations, steps, batch size, learning rate, resolution, validation and test
-episodes. Each protocol fits in its own folder `<logs>/<column>/<row>/<protocol id>/version_N`, so a
+episodes, and the model's architecture (its other arguments, e.g. width and crop size, so that a
+`--config` overlay that widens the networks is another protocol). Each protocol fits in its own folder `<logs>/<column>/<row>/<protocol id>/version_N`, so a
 rerun resumes the latest run's last checkpoint, skips a finished fit, and skips a cell whose JSON
 holds the same protocol; `--force` measures it again from a fresh fit. A test with erred episodes
 writes no cell (its record stays in the run's `evaluation/`) and exits 1. This module drives
@@ -54,6 +55,16 @@ CHECKPOINT = "ModelCheckpoint"
 MONITOR = "eval/success_rate"
 SEGMENTS = "fit-segments.json"  # in a run folder: one entry per fit started there
 LOGGER = "lightning.pytorch.loggers.TensorBoardLogger"
+# model arguments outside the protocol's "model" entry (the architecture): lr, pixel_size and
+# n_rotations are protocol keys of their own; view_chunk (memory) and log_images_every_n_steps
+# (logging) change nothing that is learned
+MODEL_ARGS_NOT_ARCHITECTURE = (
+    "lr",
+    "pixel_size",
+    "n_rotations",
+    "view_chunk",
+    "log_images_every_n_steps",
+)
 
 
 class CellError(ValueError):
@@ -150,6 +161,7 @@ def apply_budget(
 def cell_protocol(config: dict[str, Any], method: str, input_kind: str) -> dict[str, Any]:
     """What decides a cell's number apart from the code, read from its resolved config."""
     model = config["model"].get("init_args", {})
+    architecture = {k: v for k, v in model.items() if k not in MODEL_ARGS_NOT_ARCHITECTURE}
     data = config["data"].get("init_args", {})
     validation = _callback(config, CALLBACK)
     return {
@@ -166,6 +178,7 @@ def cell_protocol(config: dict[str, Any], method: str, input_kind: str) -> dict[
         "validation_every": validation["every_n_steps"],
         "validation_episodes": validation.get("episodes"),
         "test_episodes": data.get("test_episodes"),
+        "model": architecture,
     }
 
 
@@ -185,12 +198,22 @@ def cell_path(results: Path, protocol: dict[str, Any]) -> Path:
     return results / column / f"{row}.json"
 
 
-def measured(path: Path, protocol: dict[str, Any]) -> bool:
+def stored_protocol(cell: dict[str, Any], input_kind: str) -> dict[str, Any]:
+    """A stored cell's protocol as this code reads it from the cell's resolved config, so that a
+    cell written before the protocol gained a key still matches; its recorded protocol where the
+    config cannot be read so."""
+    try:
+        return cell_protocol(cell["config"], cell["method"], input_kind)
+    except (KeyError, TypeError, AttributeError, CellError):
+        return cell["protocol"]
+
+
+def measured(path: Path, protocol: dict[str, Any], input_kind: str) -> bool:
     """Whether `path` holds this cell for `protocol`; a cell of another protocol is an error."""
     if not path.exists():
         return False
     try:
-        stored = json.loads(path.read_text())["protocol"]
+        stored = stored_protocol(json.loads(path.read_text()), input_kind)
     except (OSError, ValueError, KeyError, TypeError) as error:
         raise CellError(f"unreadable cell {path} ({error}); --force replaces it") from error
     if stored == protocol:
@@ -333,7 +356,7 @@ def run_cell(
     )
     protocol = cell_protocol(config, method, input_kind)
     path = cell_path(results, protocol)
-    if not force and measured(path, protocol):
+    if not force and measured(path, protocol, input_kind):
         return path, None
     device = device or ("cuda" if torch.cuda.is_available() else "cpu")
     run_dir, resume = fit_run(logs.joinpath(*cell_name(protocol), protocol_id(protocol)), force)
