@@ -14,6 +14,7 @@ from nerf_transporter.evaluation.failures import (
     aim,
     carried_pose,
     diagnose_cell,
+    paired_table,
 )
 from nerf_transporter.evaluation.rollout import NOT_ACHIEVED
 from nerf_transporter.sim import make_env
@@ -139,6 +140,9 @@ def test_failed_episodes_are_classed_by_pick_aim_and_settling(scene, tmp_path, c
     )  # erred: not counted
     stored = json.loads(out.read_text())[0]
     assert [d["class"] for d in stored["episodes_diagnosed"]] == classes
+    cell_file = tmp_path / "results" / "block-insertion" / "mira.json"
+    assert cli_main(["failures", str(cell_file), "--no-progress"]) == 0  # one cell file
+    assert capsys.readouterr().out.count("| mira (ours) |") == 2
 
 
 def test_a_cell_of_another_world_or_without_episodes_is_refused(scene, tmp_path, capsys):
@@ -149,5 +153,32 @@ def test_a_cell_of_another_world_or_without_episodes_is_refused(scene, tmp_path,
     _cell(tmp_path, [])
     assert cli_main(["failures", str(tmp_path / "results"), "--no-progress"]) == 1
     assert "no episode results" in capsys.readouterr().err
+    (tmp_path / "other.json").write_text("{}")
+    assert cli_main(["failures", str(tmp_path / "other.json")]) == 1
+    assert "is not a cell of run-cell" in capsys.readouterr().err
     assert cli_main(["failures", str(tmp_path / "nothing")]) == 1
     assert "no such directory" in capsys.readouterr().err
+
+
+def test_mira_is_paired_with_every_other_row_of_its_column_on_common_seeds():
+    def cell(method, imagery, outcomes, task="block-insertion"):
+        episodes = [
+            {"seed": seed, "success": success, "error": None} for seed, success in outcomes.items()
+        ]
+        episodes.append({"seed": 99, "success": False, "error": "reset raised"})  # left out
+        return {"task": task, "setting": "normal", "method": method, "imagery": imagery} | {
+            "episode_results": episodes
+        }
+
+    records = [
+        cell("mira", "nerf", {1: True, 3: True, 5: False, 7: False}),
+        cell("mira", "oracle", {1: True, 3: False, 5: True, 7: False}),
+        cell("transporter_se2", None, {1: False, 3: False, 5: False}),
+        cell("form2fit", None, {1: True}, task="hanging-disks"),  # no mira in its column
+    ]
+    header, rows = paired_table(records)
+    assert header[:3] == ["column", "mira against", "seeds"]
+    assert rows == [
+        ["block-insertion", "mira, oracle imagery", "4", "1", "1", "1", "1", "1"],
+        ["block-insertion", "Transporter-SE(2)", "3", "0", "2", "0", "1", "0.5"],
+    ]

@@ -5,7 +5,12 @@ import math
 import pytest
 import torch
 
-from nerf_transporter.evaluation.metrics import SuccessRate, summarize, wilson_interval
+from nerf_transporter.evaluation.metrics import (
+    SuccessRate,
+    paired_comparison,
+    summarize,
+    wilson_interval,
+)
 
 
 @pytest.mark.parametrize(
@@ -76,3 +81,20 @@ def test_summarize_counts_failure_reasons_and_keeps_errors_out_of_the_rate():
     assert summary["ci_low"] < 1 / 3 < summary["ci_high"]
     assert summary["errors"] == 1 and summary["erred_seeds"] == [5]
     assert summary["error_reasons"] == {"observation raised OSError: disk full": 1}
+
+
+def test_paired_comparison_counts_common_seeds_and_gives_the_exact_mcnemar_p():
+    first = {seed: seed < 10 for seed in range(20)} | {99: True}  # seed 99: first only, not paired
+    second = {seed: False for seed in range(20)}
+    result = paired_comparison(first, second)
+    assert (result["seeds"], result["both"], result["first_only"]) == (20, 0, 10)
+    assert (result["second_only"], result["neither"]) == (0, 10)
+    assert result["p_value"] == pytest.approx(2 / 2**10)  # 10 of 10 discordant seeds one way
+    same = paired_comparison(second, second)
+    assert same["p_value"] == 1.0 and same["neither"] == 20
+    # 16 vs 12 discordant seeds: sum of C(28, k) for k <= 12, doubled, over 2^28
+    tail = sum(math.comb(28, k) for k in range(13)) / 2**28
+    mixed = paired_comparison({k: k < 16 for k in range(28)}, {k: k >= 16 for k in range(28)})
+    assert mixed["p_value"] == pytest.approx(2 * tail)
+    with pytest.raises(ValueError, match="share no seeds"):
+        paired_comparison({1: True}, {2: True})

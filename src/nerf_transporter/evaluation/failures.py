@@ -1,4 +1,4 @@
-"""`nerf-transporter failures results/`: why the test episodes of the results table's cells failed.
+"""`nerf-transporter failures results/ [CELL.json ...]`: why the test episodes of the results table's cells failed.
 
 Each test episode of a cell (`run-cell`'s JSON records every episode's action) is replayed up to
 its action: the seed's scene is reset, no policy and no imagery, and the recorded action is judged
@@ -21,7 +21,9 @@ before the robot moves. A failed episode falls in one class:
 Erred episodes (not counted in a cell's rate) are counted apart. Successes whose aim was off count
 too: how often the world forgives an aim (block-insertion's flat placements, docs/six_dof.md).
 A second table gives success against the tilt of the target aimed at (its normal from the
-vertical).
+vertical); a third pairs mira with every other row of its column on the same test seeds (both,
+only one, neither succeeded, and the exact McNemar p-value), e.g. mira with NeRF against mira with
+oracle imagery: the NeRF-vs-oracle gap.
 The scenes are this checkout's: a cell measured in another world (its `world` fingerprint) is
 refused, since its seeds would build other scenes here.
 """
@@ -29,6 +31,7 @@ refused, since its seeds would build other scenes here.
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import sys
 from collections import Counter
@@ -42,6 +45,7 @@ import numpy as np
 from nerf_transporter import geometry
 from nerf_transporter.atomic import write_json
 from nerf_transporter.console import HelpFormatter, progress_bar
+from nerf_transporter.evaluation.metrics import paired_comparison
 from nerf_transporter.evaluation.report import (
     METHODS,
     column_name,
@@ -303,6 +307,50 @@ def tilt_table(summaries: list[dict[str, Any]]) -> tuple[list[str], list[list[st
     return header, rows
 
 
+def paired_table(records: list[dict[str, Any]]) -> tuple[list[str], list[list[str]]]:
+    """mira against every other row of its column on their common test seeds (erred episodes
+    left out): seeds both, only mira, only the other, neither succeeded on, exact McNemar p."""
+    header = ["column", "mira against", "seeds", "both", "mira only", "other only", "neither", "p"]
+    outcomes = {
+        (r["task"], r["setting"], row_key(r["method"], r.get("imagery"))): {
+            e["seed"]: e["success"] for e in r["episode_results"] if not e.get("error")
+        }
+        for r in records
+    }
+    rows = []
+    for (task, setting, row), other in outcomes.items():
+        mira = outcomes.get((task, setting, "mira"))
+        if row == "mira" or mira is None:
+            continue
+        paired = paired_comparison(mira, other)
+        rows.append(
+            [
+                column_name(task, setting),
+                METHODS.get(row, row),
+                *(str(paired[key]) for key in ("seeds", "both", "first_only", "second_only")),
+                str(paired["neither"]),
+                f"{paired['p_value']:.2g}",
+            ]
+        )
+    return header, rows
+
+
+def load_cells(paths: list[Path]) -> list[dict[str, Any]]:
+    """The run-cell cells in the folders given (`<folder>/<column>/<row>.json`, as `results/`)
+    and the cell files given, each with its path under "path"."""
+    folders = [path for path in paths if not path.is_file()]
+    cells = [record for record in load_results(folders) if "protocol" in record]
+    for path in (path for path in paths if path.is_file()):
+        try:
+            record = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as error:
+            raise FailureAnalysisError(f"unreadable cell {path}: {error}") from error
+        if not isinstance(record, dict) or "protocol" not in record:
+            raise FailureAnalysisError(f"{path} is not a cell of run-cell (no protocol)")
+        cells.append(record | {"path": str(path)})
+    return cells
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="nerf-transporter failures",
@@ -312,18 +360,23 @@ def main(argv: list[str] | None = None) -> int:
         "failed in motion). Needs the world the cells were measured in.",
         formatter_class=HelpFormatter,
     )
-    parser.add_argument("roots", nargs="*", default=["results"], help="folders of cells")
+    parser.add_argument(
+        "cells",
+        nargs="*",
+        default=["results"],
+        help="cell files, or folders of cells (<folder>/<column>/<row>.json)",
+    )
     parser.add_argument(
         "--json", type=Path, help="also write every episode's diagnosis to this JSON file"
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
     try:
-        cells = [r for r in load_results([Path(root) for root in args.roots]) if "protocol" in r]
+        cells = load_cells([Path(path) for path in args.cells])
         records = [record for _, record in in_table_order(cells)]
         if not records:
             raise FailureAnalysisError(
-                f"no run-cell cells under {' '.join(args.roots)}; run `nerf-transporter run-cell` first"
+                f"no run-cell cells in {' '.join(args.cells)}; run `nerf-transporter run-cell` first"
             )
         analysed = []
         for record in records:
@@ -333,7 +386,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"nerf-transporter failures: {error}", file=sys.stderr)
         return 1
     summaries = [entry for entry, _ in analysed]
-    sys.stdout.write(markdown(*summary_table(summaries)) + "\n" + markdown(*tilt_table(summaries)))
+    tables = [summary_table(summaries), tilt_table(summaries)]
+    if paired := paired_table(records):
+        tables.append(paired)
+    sys.stdout.write("\n".join(markdown(*table) for table in tables))
     if args.json:
         payload = [entry | {"episodes_diagnosed": diagnoses} for entry, diagnoses in analysed]
         write_json(args.json, payload)

@@ -1,4 +1,5 @@
-"""Success rate of closed-loop episodes: a torchmetrics metric and its Wilson score interval."""
+"""Success rate of closed-loop episodes: a torchmetrics metric, its Wilson score interval, and the
+paired comparison of two methods on the same seeds."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 import torch
-from scipy.stats import norm
+from scipy.stats import binomtest, norm
 from torchmetrics import Metric
 
 
@@ -32,6 +33,26 @@ def wilson_interval(successes: int, episodes: int, confidence: float = 0.95) -> 
     low = 0.0 if successes == 0 else max(0.0, centre - half_width)
     high = 1.0 if successes == episodes else min(1.0, centre + half_width)
     return low, high
+
+
+def paired_comparison(first: Mapping[int, bool], second: Mapping[int, bool]) -> dict[str, Any]:
+    """Two methods' outcomes (seed -> success) on their common seeds: how many seeds both, only the
+    first, only the second and neither succeeded on, and the exact McNemar p-value (two-sided
+    binomial test of the seeds only one succeeded on)."""
+    seeds = sorted(set(first) & set(second))
+    if not seeds:
+        raise ValueError("the two methods share no seeds")
+    counts = Counter((bool(first[seed]), bool(second[seed])) for seed in seeds)
+    first_only, second_only = counts[(True, False)], counts[(False, True)]
+    discordant = first_only + second_only
+    return {
+        "seeds": len(seeds),
+        "both": counts[(True, True)],
+        "first_only": first_only,
+        "second_only": second_only,
+        "neither": counts[(False, False)],
+        "p_value": binomtest(first_only, discordant, 0.5).pvalue if discordant else 1.0,
+    }
 
 
 class SuccessRate(Metric):
