@@ -88,12 +88,12 @@ def aim(task: Task, object_pose: Pose, action: Mapping[str, Pose]) -> dict[str, 
     carried = carried_pose(object_pose, action)
     approach = geometry.quat_to_matrix(action["place"][1])[:, 2]
     tolerance = task.tolerance
+    limits = {"position": tolerance.position, "tilt": tolerance.tilt, "yaw": tolerance.yaw}
     aims = []
     for index, target in enumerate(task.target_poses):
         check = tolerance.check(carried, target)
         offset = np.asarray(carried[0]) - np.asarray(target[0])
         across = float(np.linalg.norm(offset - (offset @ approach) * approach))
-        limits = {"position": tolerance.position, "tilt": tolerance.tilt, "yaw": tolerance.yaw}
         errors = {"position": across, "tilt": check["tilt_error"], "yaw": check["yaw_error"]}
         missed = [
             part for part in POSE_PARTS if limits[part] is not None and errors[part] > limits[part]
