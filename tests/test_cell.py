@@ -252,6 +252,7 @@ data:
     assert (cell["episodes"] + cell["errors"], cell["test_seeds"]) == (2, [1, 3])
     assert cell["checkpoint"]["step"] in (2, 4) and cell["checkpoint"]["validation_episodes"] == 2
     assert cell["imagery"] == "oracle" and cell["protocol"]["pixel_size"] == 0.0625
+    assert cell["overlays"] == [str(overlay)]
     assert Path(tmp_path, cell["checkpoint"]["path"]).is_file()
     again = subprocess.run(argv, cwd=tmp_path, env=env, capture_output=True, text=True)
     assert again.returncode == 0 and "skipped" in again.stdout

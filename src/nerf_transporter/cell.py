@@ -416,6 +416,7 @@ def run_cell(
         "world": record["world"],
         "run_dir": str(run_dir),
         "config": config,
+        "overlays": [str(overlay) for overlay in overlays or []],
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "episode_results": record["episode_results"],
     }

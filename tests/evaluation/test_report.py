@@ -129,8 +129,10 @@ def test_report_csv(logs, capsys):
     assert lines[4] == 'Transporter-SE(2),"25% (20, 11-47)",,,,,"100% (20, 84-100)"'
 
 
-def write_cell(root, row, task, setting, successes, episodes, imagery=None, validation=None):
-    """A cell as run-cell writes it (the fields the report reads, and its protocol)."""
+def write_cell(
+    root, row, task, setting, successes, episodes, imagery=None, validation=None, overlays=()
+):
+    """A cell as run-cell writes it (the fields the report reads, its protocol and overlays)."""
     column = task if setting == "normal" else f"{task}-{setting}"
     low, high = wilson_interval(successes, episodes)
     method = row.removesuffix("-oracle")
@@ -149,6 +151,7 @@ def write_cell(root, row, task, setting, successes, episodes, imagery=None, vali
         "ci_low": low,
         "ci_high": high,
         "errors": 0,
+        "overlays": list(overlays),
         "created": "2026-11-25T00:00:00+00:00",
     }
     path = root / column / f"{row}.json"
@@ -161,7 +164,8 @@ def test_cells_of_a_results_folder_fill_their_rows_the_plot_and_the_readme(tmp_p
     curve = [(500, 0.2), (1000, 0.5), (1500, 0.7), (2000, 0.6)]
     write_cell(results, "mira", "block-insertion", "normal", 81, 100, "nerf", curve)
     write_cell(results, "mira-oracle", "block-insertion", "normal", 90, 100, imagery="oracle")
-    write_cell(results, "form2fit", "place-red-in-green", "challenging", 30, 100)
+    width64 = ["configs/gpu/width64.yaml"]
+    write_cell(results, "form2fit", "place-red-in-green", "challenging", 30, 100, overlays=width64)
     readme = tmp_path / "README.md"
     readme.write_text(f"# title\n\n{README_START}\nold text\n{README_END}\n\nthe rest\n")
     plot = tmp_path / "results" / "table1.png"
@@ -184,7 +188,7 @@ def test_cells_of_a_results_folder_fill_their_rows_the_plot_and_the_readme(tmp_p
         f"    nerf-transporter run-cell --task block-insertion --method mira --imagery oracle "
         f"{budget} --episodes 100 --force\n"
         f"    nerf-transporter run-cell --task place-red-in-green --setting challenging "
-        f"--method form2fit {budget} --episodes 100 --force\n"
+        f"--method form2fit {budget} --episodes 100 --config configs/gpu/width64.yaml --force\n"
     ) in text
     image = cv2.cvtColor(cv2.imread(str(plot)), cv2.COLOR_BGR2RGB)
     empty = table_plot([])

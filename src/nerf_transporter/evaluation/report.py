@@ -183,8 +183,10 @@ BUDGET_OPTIONS = (
 )
 
 
-def run_cell_command(protocol: dict) -> str:
-    """The `nerf-transporter run-cell` command that measures a cell of `protocol` again."""
+def run_cell_command(record: dict) -> str:
+    """The `nerf-transporter run-cell` command that measures a cell again: its protocol and the
+    `--config` overlays it was run with."""
+    protocol = record["protocol"]
     words = ["nerf-transporter run-cell", f"--task {protocol['task']}"]
     if protocol["setting"] != "normal":
         words.append(f"--setting {protocol['setting']}")
@@ -192,6 +194,7 @@ def run_cell_command(protocol: dict) -> str:
     if protocol.get("imagery") == "oracle":
         words.append("--imagery oracle")
     words += [f"{option} {protocol[key]:g}" for option, key in BUDGET_OPTIONS]
+    words += [f"--config {overlay}" for overlay in record.get("overlays", ())]
     return " ".join(words)
 
 
@@ -205,7 +208,7 @@ def in_table_order(records: list[dict]) -> list[tuple[str, dict]]:
 def cell_commands(records: list[dict]) -> list[str]:
     """The run-cell command of each newest cell that holds its protocol, in table order."""
     return [
-        run_cell_command(record["protocol"])
+        run_cell_command(record)
         for _, record in in_table_order(records)
         if all(key in record.get("protocol", {}) for _, key in BUDGET_OPTIONS)
     ]
