@@ -204,6 +204,22 @@ def test_a_test_with_erred_episodes_writes_no_cell_and_is_tested_again(fakes, mo
     assert Path("results/block-insertion/transporter_se2.json").is_file()
 
 
+def test_train_time_counts_an_interrupted_segment_up_to_its_own_last_checkpoint(tmp_path):
+    """Killed at t=1000 after a checkpoint at t=700, resumed at t=2000 and done in 500 s (its own
+    checkpoints written at t=2400 and t=2500): 700 + 500 s, not until the resumed fit's last."""
+    (tmp_path / "checkpoints").mkdir()
+    for name, mtime in [("step500", 400), ("step1000", 700), ("step1500", 2400), ("last", 2500)]:
+        checkpoint = tmp_path / "checkpoints" / f"{name}.ckpt"
+        checkpoint.touch()
+        os.utime(checkpoint, (mtime, mtime))
+    segments = [{"start_time": 0, "wall_s": None}, {"start_time": 2000, "wall_s": 500}]
+    (tmp_path / cell_module.SEGMENTS).write_text(json.dumps(segments))
+    assert cell_module.train_wall_s(tmp_path) == 1200
+    segments.append({"start_time": 3000, "wall_s": None})  # interrupted before its first checkpoint
+    (tmp_path / cell_module.SEGMENTS).write_text(json.dumps(segments))
+    assert cell_module.train_wall_s(tmp_path) == 1200
+
+
 def test_budget_options_are_checked(fakes, capsys):
     with pytest.raises(CellError, match="not a multiple of the validation interval 1000"):
         apply_budget(CONFIG, steps=2500)

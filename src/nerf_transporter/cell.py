@@ -301,15 +301,18 @@ def fit(config: dict[str, Any], run_dir: Path, resume: Path | None, device: str)
 
 def train_wall_s(run_dir: Path) -> float:
     """Wall-clock time of the run's fit segments; an interrupted one counts up to the newest
-    checkpoint it wrote (the steps after it were trained again)."""
+    checkpoint it wrote before the next segment started (the steps after it were trained again)."""
     checkpoints = [path.stat().st_mtime for path in (run_dir / "checkpoints").glob("*.ckpt")]
+    segments = _read_segments(run_dir)
+    ends = [segment["start_time"] for segment in segments[1:]] + [float("inf")]
     total = 0.0
-    for segment in _read_segments(run_dir):
+    for segment, next_start in zip(segments, ends, strict=True):
         if segment["wall_s"] is not None:
             total += segment["wall_s"]
         else:
-            written = [mtime for mtime in checkpoints if mtime >= segment["start_time"]]
-            total += max(written, default=segment["start_time"]) - segment["start_time"]
+            start = segment["start_time"]
+            written = [mtime for mtime in checkpoints if start <= mtime < next_start]
+            total += max(written, default=start) - start
     return total
 
 
