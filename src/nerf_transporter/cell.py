@@ -72,15 +72,16 @@ class CellError(ValueError):
     """A cell that cannot be run as asked (bad option, config or results file)."""
 
 
-def config_files(config_dir: Path, task: str, setting: str, method: str) -> list[Path]:
-    """The task's full config for the setting and the method's overlay."""
+def config_files(config_dir: Path, task: str, setting: str, method: str | None) -> list[Path]:
+    """The task's full config for the setting and the method's overlay (none for no method)."""
     stem = task.replace("-", "_") + ("" if setting == "normal" else f"_{setting}")
-    files = [config_dir / f"{stem}.yaml", config_dir / "model" / f"{method}.yaml"]
+    files = [config_dir / f"{stem}.yaml"]
+    files += [config_dir / "model" / f"{method}.yaml"] if method else []
     for path in files:
         if not path.is_file():
             available = sorted(p.name for p in config_dir.glob("*.yaml"))
             raise CellError(
-                f"no config {path} for {task} {setting} / {method} "
+                f"no config {path} for {task} {setting}{f' / {method}' if method else ''} "
                 f"(task configs in {config_dir}: {', '.join(available) or 'none'})"
             )
     return files

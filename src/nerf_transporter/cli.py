@@ -40,6 +40,10 @@ TOOLS: dict[str, tuple[str, str]] = {
         "nerf_transporter.cell:main",
         "one cell of the results table: fit, pick by validation, test, write its JSON",
     ),
+    "cache-imagery": (
+        "nerf_transporter.cache_imagery:main",
+        "build a split's evaluation imagery (NeRF fits) into the cache before its episodes run",
+    ),
     "failures": (
         "nerf_transporter.evaluation.failures:main",
         "why the cells' test episodes failed: pick, aim (position / tilt / yaw) or settling",

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 
+from nerf_transporter.data.observation import SceneSpec
 from nerf_transporter.evaluation import rollout
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
 from nerf_transporter.sim import make_env
@@ -113,6 +114,26 @@ def test_imagery_is_cached_by_seed_and_reused(tmp_path):
     # a different imagery config is a different cache entry
     other = EvaluationSpec(task="block-insertion", imagery="oracle", pixel_size=0.025)
     assert other.imagery_key() != spec.imagery_key()
+
+
+def test_imagery_cached_ahead_is_the_episodes_own_and_is_read_by_it(tmp_path):
+    """A NeRF fit cached before the episode (cache-imagery) equals the one the episode makes."""
+    scene = SceneSpec("block-insertion", "normal", "nerf", 0.0125, 6, (60, 80), {"iterations": 30})
+    ahead, inline = (EvaluationSpec(scene=scene, cache_dir=str(tmp_path / n)) for n in "ai")
+    rng = torch.random.get_rng_state()
+    with Evaluator(ahead) as evaluator:
+        assert (evaluator.cache_imagery(1), evaluator.cache_imagery(1)) == (True, False)
+        assert torch.equal(torch.random.get_rng_state(), rng)
+        assert evaluator.run_episode(FixedPolicy(input_kind="imagery"), 1).imagery_cached
+    with Evaluator(inline) as evaluator:
+        assert evaluator.run_episode(FixedPolicy(input_kind="imagery"), 1).imagery_cached is False
+    (built_ahead,), (built_inline,) = (sorted((tmp_path / n).rglob("*.npz")) for n in "ai")
+    assert built_ahead.relative_to(tmp_path / "a") == built_inline.relative_to(tmp_path / "i")
+    with np.load(built_ahead) as first, np.load(built_inline) as second:
+        for key in ("colour", "height", "views"):
+            np.testing.assert_array_equal(first[key], second[key])
+    with pytest.raises(ValueError, match="needs an imagery cache"):
+        Evaluator(EvaluationSpec(scene=scene, cache_dir=None)).cache_imagery(1)
 
 
 def oracle_imagery_spec(cache_dir):

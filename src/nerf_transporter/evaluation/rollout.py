@@ -289,17 +289,36 @@ class Evaluator:
             return None
         return self.cache.load(self.spec.task, self.spec.setting, seed, self.spec.imagery_key())
 
+    def _build_imagery(self, env: Any, obs: dict, seed: int) -> dict[str, np.ndarray]:
+        """The imagery of the scene `env` was just reset to, built and saved to the cache."""
+        imagery = imagery_observation(self.spec.scene, env, obs)
+        if self.cache is not None:
+            self.cache.save(
+                self.spec.task, self.spec.setting, seed, self.spec.imagery_key(), imagery
+            )
+        return imagery
+
     def _observation(
         self, input_kind: str, env: Any, obs: dict, seed: int, imagery: dict | None
     ) -> dict:
         """The method's observation (`data.observation`); imagery built here goes to the cache."""
         if input_kind == "imagery" and imagery is None:
-            imagery = imagery_observation(self.spec.scene, env, obs)
-            if self.cache is not None:
-                self.cache.save(
-                    self.spec.task, self.spec.setting, seed, self.spec.imagery_key(), imagery
-                )
+            imagery = self._build_imagery(env, obs, seed)
         return observation(input_kind, self.spec.scene, env, obs, imagery)
+
+    def cache_imagery(self, seed: int) -> bool:
+        """Build the imagery of `seed`'s scene into the cache, as an imagery method's episode
+        would before it acts, so that episodes run later only read it. False where it was cached
+        already. The global torch random state is restored afterwards."""
+        if self.cache is None:
+            raise ValueError("cache_imagery needs an imagery cache (the spec's cache_dir is None)")
+        if self._load_imagery(seed) is not None:
+            return False
+        with torch.random.fork_rng():
+            env = self._env(self._rigs("imagery", cached=False))
+            obs, _ = env.reset(seed=seed)
+            self._build_imagery(env, obs, seed)
+        return True
 
     # -- episodes -----------------------------------------------------------------------------
 
