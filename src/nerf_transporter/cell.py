@@ -25,6 +25,7 @@ import argparse
 import copy
 import hashlib
 import json
+import logging
 import subprocess
 import sys
 import tempfile
@@ -88,11 +89,21 @@ def config_files(config_dir: Path, task: str, setting: str, method: str | None) 
 
 
 def resolve_config(files: list[Path]) -> dict[str, Any]:
-    """The config LightningCLI resolves from `files` (defaults filled in, class paths in full)."""
+    """The config LightningCLI resolves from `files` (defaults filled in, class paths in full),
+    without the seed and accelerator lines it logs when it builds the trainer."""
     args: list[str] = []
     for path in files:
         args += ["--config", str(path)]
-    cli = build_cli(args, run=False)
+    disabled = logging.root.manager.disable
+    logging.disable(logging.INFO)
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings(
+                "ignore", message=r".*LightningCLI's args parameter is intended"
+            )
+            cli = build_cli(args, run=False)
+    finally:
+        logging.disable(disabled)
     return yaml.safe_load(cli.parser.dump(cli.config))
 
 
