@@ -15,10 +15,9 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
-from nerf_transporter.cell import CellError, config_files, resolve_config
+from nerf_transporter.cell import CellError, add_config_arguments, config_files, resolve_config
 from nerf_transporter.console import HelpFormatter, progress_bar
 from nerf_transporter.data.datamodule import RavensDataModule
 from nerf_transporter.evaluation.report import TASKS
@@ -73,14 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--reverse", action="store_true", help="last seed first (to meet a run going forward)"
     )
-    parser.add_argument(
-        "--config",
-        type=Path,
-        action="append",
-        default=[],
-        help="another config applied after the task's, as given to run-cell (repeatable)",
-    )
-    parser.add_argument("--configs", type=Path, default=Path("configs"), help="config folder")
+    add_config_arguments(parser, "the task's, as given to run-cell")
     parser.add_argument("--cache-dir", default=DEFAULT_CACHE_DIR, help="imagery cache")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)

@@ -439,6 +439,18 @@ def run_cell(
     return path, payload
 
 
+def add_config_arguments(parser: argparse.ArgumentParser, applied_after: str) -> None:
+    """`--config` overlays, applied after `applied_after`, and `--configs`, the config folder."""
+    parser.add_argument(
+        "--config",
+        type=Path,
+        action="append",
+        default=[],
+        help=f"another config applied after {applied_after} (repeatable)",
+    )
+    parser.add_argument("--configs", type=Path, default=Path("configs"), help="config folder")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="nerf-transporter run-cell",
@@ -461,14 +473,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=100, help="test episodes (first seeds)")
     parser.add_argument("--val-every", type=int, help="steps between validation rounds")
     parser.add_argument("--val-episodes", type=int, help="validation episodes per round")
-    parser.add_argument(
-        "--config",
-        type=Path,
-        action="append",
-        default=[],
-        help="another config applied after the task's and the method's (repeatable)",
-    )
-    parser.add_argument("--configs", type=Path, default=Path("configs"), help="config folder")
+    add_config_arguments(parser, "the task's and the method's")
     parser.add_argument("--results", type=Path, default=Path("results"), help="cell folder")
     parser.add_argument("--logs", type=Path, default=Path("logs/cells"), help="fit runs folder")
     parser.add_argument("--force", action="store_true", help="measure again from a fresh fit")
