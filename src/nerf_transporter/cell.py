@@ -97,14 +97,18 @@ def resolve_config(files: list[Path]) -> dict[str, Any]:
     disabled = logging.root.manager.disable
     logging.disable(logging.INFO)
     try:
-        with warnings.catch_warnings():
-            warnings.filterwarnings(
-                "ignore", message=r".*LightningCLI's args parameter is intended"
-            )
-            cli = build_cli(args, run=False)
+        cli = build_cli_from_python(args, run=False)
     finally:
         logging.disable(disabled)
     return yaml.safe_load(cli.parser.dump(cli.config))
+
+
+def build_cli_from_python(args: list[str], **options: Any) -> Any:
+    """`build_cli(args)` without LightningCLI's warning that `args` came with a command line:
+    run-cell drives LightningCLI from Python on purpose, with its own arguments."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r".*LightningCLI's args parameter is intended")
+        return build_cli(args, **options)
 
 
 def _callback(config: dict[str, Any], name: str) -> dict[str, Any]:
@@ -306,7 +310,7 @@ def fit(config: dict[str, Any], run_dir: Path, resume: Path | None, device: str)
         yaml.safe_dump(config, file, sort_keys=False)
         file.flush()
         args = ["fit", "--config", file.name]
-        build_cli(args + (["--ckpt_path", str(resume)] if resume else []))
+        build_cli_from_python(args + (["--ckpt_path", str(resume)] if resume else []))
     segment["wall_s"] = time.time() - segment["start_time"]
     write_json(run_dir / SEGMENTS, segments + [segment])
 
@@ -484,8 +488,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--device", help="torch device (default: cuda if present)")
     args = parser.parse_args(argv)
-    # run-cell drives LightningCLI from Python on purpose, with its own arguments
-    warnings.filterwarnings("ignore", message=r".*LightningCLI's args parameter is intended")
     try:
         path, record = run_cell(
             task=args.task,

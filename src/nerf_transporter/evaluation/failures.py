@@ -307,6 +307,9 @@ def tilt_table(summaries: list[dict[str, Any]]) -> tuple[list[str], list[list[st
     return header, rows
 
 
+PAIRED_COUNTS = ("seeds", "both", "first_only", "second_only", "neither")
+
+
 def paired_table(records: list[dict[str, Any]]) -> tuple[list[str], list[list[str]]]:
     """mira against every other row of its column on their common test seeds (erred episodes
     left out): seeds both, only mira, only the other, neither succeeded on, exact McNemar p."""
@@ -327,8 +330,7 @@ def paired_table(records: list[dict[str, Any]]) -> tuple[list[str], list[list[st
             [
                 column_name(task, setting),
                 METHODS.get(row, row),
-                *(str(paired[key]) for key in ("seeds", "both", "first_only", "second_only")),
-                str(paired["neither"]),
+                *(str(paired[key]) for key in PAIRED_COUNTS),
                 f"{paired['p_value']:.2g}",
             ]
         )
