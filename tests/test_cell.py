@@ -13,6 +13,7 @@ import torch
 import yaml
 
 from nerf_transporter import cell as cell_module
+from nerf_transporter.atomic import write_new_json
 from nerf_transporter.cell import CellError, apply_budget, run_cell
 from nerf_transporter.evaluation.metrics import summarize
 from nerf_transporter.evaluation.report import load_results, results_table
@@ -50,6 +51,8 @@ CONFIG = {
 }
 # validation success stored with each checkpoint; step 4's round had erred episodes (NaN -> -inf)
 SCORES = {2: 0.5, 4: float("-inf"), 6: 0.5, 8: 0.25}
+# validation successes (of 4) of a fit without closed-loop validation, counted afterwards
+VALIDATION_SUCCESSES = {2: 1, 4: 3, 6: 3, 8: 2}
 
 
 class FakeLightning:
@@ -57,19 +60,24 @@ class FakeLightning:
     `every_n_train_steps` up to `max_steps` (or raises KeyboardInterrupt after `interrupt_at`)."""
 
     def __init__(self):
-        self.calls, self.interrupt_at = [], None
+        self.calls, self.configs, self.interrupt_at = [], [], None
 
     def __call__(self, args):
         config = yaml.safe_load(Path(args[args.index("--config") + 1]).read_text())
         resume = args[args.index("--ckpt_path") + 1] if "--ckpt_path" in args else None
         self.calls.append(resume)
+        self.configs.append(config)
         logger = config["trainer"]["logger"]["init_args"]
         folder = Path(logger["save_dir"], logger["version"], "checkpoints")
         folder.mkdir(parents=True, exist_ok=True)
-        every = config["trainer"]["callbacks"][1]["init_args"]["every_n_train_steps"]
+        (saver,) = [
+            c for c in config["trainer"]["callbacks"] if "ModelCheckpoint" in c["class_path"]
+        ]
+        every, monitor = (saver["init_args"].get(key) for key in ("every_n_train_steps", "monitor"))
         start = torch.load(resume, weights_only=True)["global_step"] if resume else 0
         for step in range(start + every, config["trainer"]["max_steps"] + 1, every):
-            state = {"monitor": "eval/success_rate", "current_score": torch.tensor(SCORES[step])}
+            score = torch.tensor(SCORES[step]) if monitor else None
+            state = {"monitor": monitor, "current_score": score}
             checkpoint = {"global_step": step, "callbacks": {"ModelCheckpoint{...}": state}}
             torch.save(checkpoint, folder / f"step{step:06d}.ckpt")
             torch.save(checkpoint, folder / "last.ckpt")
@@ -78,15 +86,28 @@ class FakeLightning:
 
 
 def fake_test(run_dir, split, episodes, *, only, errors=0, **kwargs):
-    """Stands in for `evaluate_checkpoints`: seeds 1, 3, 5, ... succeed on every other one."""
-    results = [
-        {"seed": 2 * i + 1, "success": i % 2 == 0, "failure": None if i % 2 == 0 else "missed"}
-        for i in range(episodes)
-    ]
-    for result in results[:errors]:
-        result |= {"success": False, "error": "ValueError: broken cache"}
-    record = {"checkpoint": str(only[0]), "world": "0123456789abcdef", **summarize(results)}
-    return [record | {"episode_results": results}]
+    """Stands in for `evaluate_checkpoints`: on test seeds 1, 3, 5, ... every other one succeeds;
+    on validation seeds the first `VALIDATION_SUCCESSES[step]`, recorded as the real one does."""
+    records = []
+    for path in only:
+        step = torch.load(path, weights_only=True)["global_step"]
+        wins = VALIDATION_SUCCESSES[step] if split == "validation" else None
+        results = [
+            {
+                "seed": 2 * i + 1,
+                "success": i < wins if wins is not None else i % 2 == 0,
+                "failure": "missed",
+            }
+            for i in range(episodes)
+        ]
+        for result in results[:errors]:
+            result |= {"success": False, "error": "ValueError: broken cache"}
+        record = {"checkpoint": str(path), "global_step": step, "split": split, "setting": "normal"}
+        record |= {"world": "0123456789abcdef", **summarize(results), "episode_results": results}
+        if split == "validation":
+            write_new_json(run_dir / "evaluation", f"{path.stem}-{split}-normal", record)
+        records.append(record)
+    return records
 
 
 @pytest.fixture
@@ -187,6 +208,37 @@ def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol
     path, record = run(force=True)  # a fresh fit in a new run folder
     assert fakes.calls[-1] is None and record["run_dir"].endswith("version_1")
     assert json.loads(cell.read_text())["created"] != created
+
+
+def test_a_fit_without_pybullet_is_validated_where_the_cell_is_tested(fakes, monkeypatch):
+    run_dir, record = run(fit_only=True)
+    assert record is None and run_dir.name == "version_0" and len(fakes.calls) == 1
+    callbacks = [c["class_path"] for c in fakes.configs[0]["trainer"]["callbacks"]]
+    assert callbacks == ["lightning.pytorch.callbacks.ModelCheckpoint"]
+    assert not Path("results").exists() and not (run_dir / "evaluation").exists()
+    assert run(fit_only=True) == (run_dir, None) and len(fakes.calls) == 1  # fit done: kept
+
+    evaluated, interrupt = [], [True]
+
+    def interrupted_once(run_dir, split, episodes, *, only, **kwargs):
+        if split == "validation" and interrupt:
+            interrupt.clear()
+            only = only[:2]
+            fake_test(run_dir, split, episodes, only=only, **kwargs)
+            evaluated.extend((split, path.name) for path in only)
+            raise KeyboardInterrupt
+        evaluated.extend((split, path.name) for path in only)
+        return fake_test(run_dir, split, episodes, only=only, **kwargs)
+
+    monkeypatch.setattr(cell_module, "evaluate_checkpoints", interrupted_once)
+    with pytest.raises(KeyboardInterrupt):
+        run()
+    path, stored = run()  # validates the two rounds left, then tests the best
+    assert len(fakes.calls) == 1  # not fitted again
+    rounds = [f"step{step:06d}.ckpt" for step in (2, 4, 6, 8)]
+    assert evaluated == [("validation", name) for name in rounds] + [("test", rounds[2])]
+    assert [r["success_rate"] for r in stored["validation"]] == [0.25, 0.75, 0.75, 0.5]
+    assert stored["checkpoint"]["step"] == 6 and stored["checkpoint"]["validation_successes"] == 3
 
 
 def test_a_test_with_erred_episodes_writes_no_cell_and_is_tested_again(fakes, monkeypatch, capsys):

@@ -44,6 +44,7 @@ from nerf_transporter.console import HelpFormatter
 from nerf_transporter.device_info import describe_device
 from nerf_transporter.evaluation.checkpoints import (
     best_record,
+    checkpoint_steps,
     config_callbacks,
     evaluate_checkpoints,
     validation_records,
@@ -172,6 +173,21 @@ def apply_budget(
             f"{steps} training steps is not a multiple of the validation interval {every}: the "
             "last steps would have no validated checkpoint (set --steps or --val-every)"
         )
+    return config
+
+
+def without_closed_loop(config: dict[str, Any]) -> dict[str, Any]:
+    """`config` for a fit on a machine without PyBullet: no closed-loop validation callback, and
+    the checkpoints at the same steps, all kept, unscored (run-cell validates them afterwards)."""
+    config = copy.deepcopy(config)
+    trainer = config["trainer"]
+    trainer["callbacks"] = [
+        c for c in trainer["callbacks"] if c not in config_callbacks(config, CALLBACK)
+    ]
+    checkpoint = _callback(config, CHECKPOINT)
+    for key in ("monitor", "mode"):
+        checkpoint.pop(key, None)
+    checkpoint.update(save_top_k=-1, filename="step{step:06d}", auto_insert_metric_name=False)
     return config
 
 
@@ -332,6 +348,33 @@ def train_wall_s(run_dir: Path) -> float:
     return total
 
 
+def validate(
+    run_dir: Path, protocol: dict[str, Any], device: str, workers: int | None
+) -> list[dict[str, Any]]:
+    """The run's validation rounds (`validation_records`), after running closed loop here the
+    rounds its fit could not (checkpoints at validation steps saved without a score)."""
+    episodes, setting = protocol["validation_episodes"], protocol["setting"]
+    records = validation_records(run_dir, episodes, setting)
+    done = {record["global_step"] for record in records}
+    every, steps = protocol["validation_every"], protocol["steps"]
+    pending = [
+        path
+        for step, path in checkpoint_steps(run_dir)
+        if step % every == 0 and 0 < step <= steps and step not in done
+    ]
+    if pending:
+        evaluate_checkpoints(
+            run_dir,
+            "validation",
+            episodes,
+            only=pending,
+            device=torch.device(device),
+            workers=workers,
+        )
+        records = validation_records(run_dir, episodes, setting)
+    return records
+
+
 def run_cell(
     *,
     task: str,
@@ -351,10 +394,12 @@ def run_cell(
     force: bool = False,
     eval_workers: int | None = None,
     device: str | None = None,
+    fit_only: bool = False,
 ) -> tuple[Path, dict[str, Any] | None]:
     """Run one cell (see the module's docstring). Returns (cell path, cell record); the record is
     None where the cell was already measured under this protocol, and holds no cell (nothing
-    written) where test episodes erred (`errors` > 0)."""
+    written) where test episodes erred (`errors` > 0). With `fit_only` (a machine without
+    PyBullet): only the fit, `without_closed_loop`; returns (run folder, None)."""
     if method not in METHODS:
         raise CellError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
     input_kind = METHODS[method].input_kind
@@ -381,8 +426,10 @@ def run_cell(
     device = device or ("cuda" if torch.cuda.is_available() else "cpu")
     run_dir, resume = fit_run(logs.joinpath(*cell_name(protocol), protocol_id(protocol)), force)
     if resume is None or checkpoint_step(resume) < protocol["steps"]:
-        fit(config, run_dir, resume, device)
-    validation = validation_records(run_dir, protocol["validation_episodes"])
+        fit(without_closed_loop(config) if fit_only else config, run_dir, resume, device)
+    if fit_only:
+        return run_dir, None
+    validation = validate(run_dir, protocol, device, eval_workers)
     chosen = best_record(validation)
     if chosen is None:
         raise CellError(
@@ -487,6 +534,13 @@ def main(argv: list[str] | None = None) -> int:
         help="processes running validation and test episodes (default: one per available core)",
     )
     parser.add_argument("--device", help="torch device (default: cuda if present)")
+    parser.add_argument(
+        "--fit-only",
+        action="store_true",
+        help="only the fit, without closed-loop validation (for a GPU machine without PyBullet); "
+        "bring its run folder back and run the same command without --fit-only, which validates "
+        "its checkpoints and tests the best",
+    )
     args = parser.parse_args(argv)
     try:
         path, record = run_cell(
@@ -507,10 +561,14 @@ def main(argv: list[str] | None = None) -> int:
             force=args.force,
             eval_workers=args.eval_workers,
             device=args.device,
+            fit_only=args.fit_only,
         )
     except (CellError, FileNotFoundError) as error:
         print(f"nerf-transporter run-cell: {error}", file=sys.stderr)
         return 2
+    if args.fit_only and path.is_dir():  # the run folder of the fit
+        print(f"fit done: {path}; validate and test it with the same command without --fit-only")
+        return 0
     if record is None:
         print(
             f"{path} holds this cell under the same protocol: skipped (--force measures it again)"

@@ -69,12 +69,36 @@ def validation_score(checkpoint: dict[str, Any]) -> float | None:
     return None
 
 
-def validation_records(run_dir: Path, episodes: int) -> list[dict[str, Any]]:
+def evaluated_validation(
+    run_dir: Path, checkpoint: Path, episodes: int, setting: str
+) -> dict[str, Any] | None:
+    """The first `evaluate_checkpoints` record of `checkpoint` in `run_dir/evaluation` on the first
+    `episodes` validation seeds of `setting`, or None."""
+    for path in sorted((run_dir / "evaluation").glob(f"{checkpoint.stem}-validation-*.json")):
+        record = json.loads(path.read_text())
+        if (
+            Path(record.get("checkpoint") or "").name == checkpoint.name
+            and record.get("split") == "validation"
+            and record.get("setting") == setting
+            and record.get("episodes", 0) + record.get("errors", 0) == episodes
+        ):
+            return record
+    return None
+
+
+def validation_records(
+    run_dir: Path, episodes: int, setting: str | None = None
+) -> list[dict[str, Any]]:
     """One record per checkpoint of the run (by step): the validation success ModelCheckpoint
-    stored with it; `errors` is 1 where that round had erred episodes (stored as -inf)."""
+    stored with it; `errors` is 1 where that round had erred episodes (stored as -inf). With
+    `setting`, a checkpoint saved without a round (by a fit without closed-loop validation, e.g.
+    on a machine without PyBullet) takes its `evaluated_validation` record instead, if any."""
     records = []
     for step, path in checkpoint_steps(run_dir):
         rate = validation_score(torch.load(path, map_location="cpu", weights_only=True, mmap=True))
+        evaluated = evaluated_validation(run_dir, path, episodes, setting) if setting else None
+        if rate is None and evaluated is not None:
+            rate = evaluated["success_rate"] if not evaluated["errors"] else -math.inf
         if rate is None:
             continue  # saved without a validation round (e.g. by an interrupted fit)
         valid = math.isfinite(rate)
