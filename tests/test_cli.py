@@ -18,7 +18,14 @@ import torch
 from lightning.pytorch.callbacks import ModelCheckpoint
 from torch.utils.data import DataLoader
 
-from nerf_transporter.cli import build_cli, claim_version, fit_summary, lightning_main, main
+from nerf_transporter.cli import (
+    build_cli,
+    claim_version,
+    fit_summary,
+    latest_checkpoint,
+    lightning_main,
+    main,
+)
 from nerf_transporter.evaluation.callback import SuccessRateCallback
 from nerf_transporter.methods import METHODS, Mira, TransporterSE2
 from tests.helpers.synthetic import SIZE, STATE_DIM, synthetic_batch, synthetic_observation
@@ -239,6 +246,18 @@ def test_ckpt_path_last_resumes_the_latest_run_in_its_folder(tmp_path):
     # the run's config stays; the resumed one is saved beside it
     assert (run / "config.yaml").read_text() == config_text
     assert "max_steps: 4" in (run / "config-fit.yaml").read_text()
+
+
+def test_resume_takes_the_furthest_checkpoint_of_a_run_copied_with_one_time(tmp_path):
+    folder = tmp_path / "runs" / "version_0" / "checkpoints"
+    folder.mkdir(parents=True)
+    for step in (1500, 500, 2000, 1000):  # written in no order, then stamped alike (tar, rsync)
+        path = folder / f"step{step:06d}.ckpt"
+        torch.save({"global_step": step}, path)
+        os.utime(path, (1.0e9, 1.0e9))
+    assert latest_checkpoint(tmp_path / "runs") == folder / "step002000.ckpt"
+    torch.save({"global_step": 1700}, folder / "last.ckpt")
+    assert latest_checkpoint(tmp_path / "runs") == folder / "last.ckpt"
 
 
 def test_ckpt_path_last_without_a_run_is_a_named_error(tmp_path, capsys):

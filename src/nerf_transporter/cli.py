@@ -135,14 +135,18 @@ class NoRunToResumeError(FileNotFoundError):
 
 def latest_checkpoint(runs: Path) -> Path:
     """The checkpoint to resume from: in the highest-numbered run under `runs` that has any,
-    `last.ckpt`, else its most recently written checkpoint."""
+    `last.ckpt`, else the checkpoint of the highest global step (not the most recently written:
+    a copy from another machine can give every file the same time)."""
+    from nerf_transporter.evaluation.testing import checkpoint_step
+
     found = []
     for path in runs.iterdir() if runs.is_dir() else []:
         number = _version(path)
-        checkpoints = sorted((path / "checkpoints").glob("*.ckpt"), key=lambda p: p.stat().st_mtime)
+        checkpoints = list((path / "checkpoints").glob("*.ckpt"))
         if number is not None and checkpoints:
             last = path / "checkpoints" / "last.ckpt"
-            found.append((number, last if last.is_file() else checkpoints[-1]))
+            furthest = max(checkpoints, key=lambda p: (checkpoint_step(p), p.stat().st_mtime))
+            found.append((number, last if last.is_file() else furthest))
     if not found:
         raise NoRunToResumeError(
             f"--ckpt_path last: no earlier run to resume, no checkpoint under {runs}/version_N/"
