@@ -175,6 +175,24 @@ def test_gpu_overlays_change_only_where_and_how_fast():
     assert callbacks(config) == [(CHECKPOINT, callbacks(config)[0][1])]
 
 
+def test_the_shared_gpu_overlay_changes_only_where_and_how_fast():
+    # none of these keys is part of a cell's protocol (cell.cell_protocol): same run folder
+    base, _ = resolve("hanging_disks.yaml", "model/form2fit.yaml")
+    config, _ = resolve(
+        "hanging_disks.yaml",
+        "model/form2fit.yaml",
+        "gpu/shared.yaml",
+        extra=("--trainer.accelerator", "cpu"),  # no GPU here
+    )
+    changed = {key for key in config if config[key] != base.get(key)}
+    assert changed == {
+        "trainer.accelerator",  # gpu in shared.yaml, cpu from the command line here
+        "trainer.devices",
+        "data.init_args.num_workers",
+        "data.init_args.pin_memory",
+    }
+
+
 def test_the_model_takes_pixel_size_and_rotations_from_the_data():
     argv = ("--data.init_args.pixel_size", "0.0125", "--data.init_args.n_rotations", "12")
     for method in ("mira", "form2fit"):
