@@ -15,8 +15,10 @@ episodes, and the model's architecture (its other arguments, e.g. width and crop
 folder `<logs>/<column>/<row>/<protocol id>/version_N`, so a rerun resumes the latest run's last
 checkpoint, skips a finished fit, and skips a cell whose JSON holds the same protocol; `--force`
 measures it again from a fresh fit. A test with erred episodes writes no cell (its record stays
-in the run's `evaluation/`) and exits 1. This module drives `lightning fit`, so it sits beside the
-CLI, above the evaluation layer.
+in the run's `evaluation/`) and exits 1. `--fit-only` runs only the fit, without the closed-loop
+validation callback (a GPU machine without PyBullet); the same command without it, where PyBullet
+is, validates the unscored checkpoints closed loop, picks the best and tests it. This module drives
+`lightning fit`, so it sits beside the CLI, above the evaluation layer.
 """
 
 from __future__ import annotations
