@@ -152,45 +152,33 @@ def test_method_overlays_keep_the_task_settings(task_config):
         }
 
 
-def test_gpu_overlays_change_only_where_and_how_fast():
+WHERE = {"trainer.accelerator", "trainer.devices"}  # gpu in the overlay, cpu from the command line
+LOADER = {"data.init_args.num_workers", "data.init_args.pin_memory"}
+
+
+@pytest.mark.parametrize(
+    "stacked, expected",
+    [
+        (
+            ("gpu/h100.yaml", "gpu/width64.yaml", "gpu/bf16.yaml", "gpu/no_pybullet.yaml"),
+            WHERE | LOADER | {"trainer.precision", "trainer.callbacks", "model.init_args.width"},
+        ),
+        # none of these keys is part of a cell's protocol (cell.cell_protocol): same run folder
+        (("gpu/shared.yaml",), WHERE | LOADER),
+    ],
+)
+def test_gpu_overlays_change_only_where_and_how_fast(stacked, expected):
     base, _ = resolve("quick/hanging_disks.yaml", "model/transporter_se3.yaml")
-    stacked = ("gpu/h100.yaml", "gpu/width64.yaml", "gpu/bf16.yaml", "gpu/no_pybullet.yaml")
     config, cli = resolve(
         "quick/hanging_disks.yaml",
         "model/transporter_se3.yaml",
         *stacked,
         extra=("--trainer.accelerator", "cpu"),  # no GPU here
     )
-    changed = {key for key in config if config[key] != base.get(key)}
-    assert changed == {
-        "trainer.accelerator",  # gpu in h100.yaml, cpu from the command line here
-        "trainer.devices",
-        "trainer.precision",
-        "trainer.callbacks",
-        "model.init_args.width",
-        "data.init_args.num_workers",
-        "data.init_args.pin_memory",
-    }
-    assert (config["model.init_args.width"], config["trainer.precision"]) == (64, "bf16-mixed")
-    assert callbacks(config) == [(CHECKPOINT, callbacks(config)[0][1])]
-
-
-def test_the_shared_gpu_overlay_changes_only_where_and_how_fast():
-    # none of these keys is part of a cell's protocol (cell.cell_protocol): same run folder
-    base, _ = resolve("hanging_disks.yaml", "model/form2fit.yaml")
-    config, _ = resolve(
-        "hanging_disks.yaml",
-        "model/form2fit.yaml",
-        "gpu/shared.yaml",
-        extra=("--trainer.accelerator", "cpu"),  # no GPU here
-    )
-    changed = {key for key in config if config[key] != base.get(key)}
-    assert changed == {
-        "trainer.accelerator",  # gpu in shared.yaml, cpu from the command line here
-        "trainer.devices",
-        "data.init_args.num_workers",
-        "data.init_args.pin_memory",
-    }
+    assert {key for key in config if config[key] != base.get(key)} == expected
+    if "gpu/bf16.yaml" in stacked:
+        assert (config["model.init_args.width"], config["trainer.precision"]) == (64, "bf16-mixed")
+        assert callbacks(config) == [(CHECKPOINT, callbacks(config)[0][1])]
 
 
 def test_the_model_takes_pixel_size_and_rotations_from_the_data():
