@@ -129,8 +129,20 @@ def test_report_csv(logs, capsys):
     assert lines[4] == 'Transporter-SE(2),"25% (20, 11-47)",,,,,"100% (20, 84-100)"'
 
 
+CPU = {"cpu": "AMD EPYC", "threads": 1, "gpu": None}
+
+
 def write_cell(
-    root, row, task, setting, successes, episodes, imagery=None, validation=None, overlays=()
+    root,
+    row,
+    task,
+    setting,
+    successes,
+    episodes,
+    imagery=None,
+    validation=None,
+    overlays=(),
+    fit=CPU,
 ):
     """A cell as run-cell writes it (the fields the report reads, its protocol and overlays)."""
     column = task if setting == "normal" else f"{task}-{setting}"
@@ -152,6 +164,7 @@ def write_cell(
         "ci_high": high,
         "errors": 0,
         "overlays": list(overlays),
+        "machine": {"fit": [fit], "test": CPU},
         "created": "2026-11-25T00:00:00+00:00",
     }
     path = root / column / f"{row}.json"
@@ -165,7 +178,17 @@ def test_cells_of_a_results_folder_fill_their_rows_the_plot_and_the_readme(tmp_p
     write_cell(results, "mira", "block-insertion", "normal", 81, 100, "nerf", curve)
     write_cell(results, "mira-oracle", "block-insertion", "normal", 90, 100, imagery="oracle")
     width64 = ["configs/gpu/width64.yaml"]
-    write_cell(results, "form2fit", "place-red-in-green", "challenging", 30, 100, overlays=width64)
+    h100 = {"cpu": "Intel(R) Xeon(R) Processor", "gpu": "NVIDIA H100 80GB HBM3"}
+    write_cell(
+        results,
+        "form2fit",
+        "place-red-in-green",
+        "challenging",
+        30,
+        100,
+        overlays=width64,
+        fit=h100,
+    )
     readme = tmp_path / "README.md"
     readme.write_text(f"# title\n\n{README_START}\nold text\n{README_END}\n\nthe rest\n")
     plot = tmp_path / "results" / "table1.png"
@@ -181,6 +204,11 @@ def test_cells_of_a_results_folder_fill_their_rows_the_plot_and_the_readme(tmp_p
     assert "old text" not in text and "3 of 30 cells measured" in text
     assert "| mira, oracle imagery | 90% (100, 83-94) |" in text
     assert "![results table as bars](results/table1.png)" in text
+    assert (
+        "- AMD EPYC (2 cells): mira (ours) on block-insertion; mira, oracle imagery on "
+        "block-insertion\n- NVIDIA H100 80GB HBM3 (1 cell): Form2Fit on place-red-in-green "
+        "Challenging\n"
+    ) in text
     budget = "--steps 2000 --batch-size 1 --lr 0.0001 --val-every 500 --val-episodes 10"
     assert (
         f"    nerf-transporter run-cell --task block-insertion --method mira {budget} "

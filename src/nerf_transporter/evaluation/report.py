@@ -238,6 +238,23 @@ def validation_plot(task: str, setting: str, cells: list[tuple[str, dict]]) -> n
     )
 
 
+def fit_machines(records: list[dict]) -> list[str]:
+    """One line per machine the newest cells' fits ran on (its GPU, else its CPU): how many cells
+    and which, by row then column as in the table."""
+    cells: dict[str, dict[str, list[str]]] = {}
+    for row, record in in_table_order(records):
+        fits = record.get("machine", {}).get("fit") or [{}]
+        for name in sorted({fit.get("gpu") or fit.get("cpu") or "not recorded" for fit in fits}):
+            column = column_name(record["task"], record["setting"])
+            cells.setdefault(name, {}).setdefault(METHODS.get(row, row), []).append(column)
+    lines = []
+    for name, rows in cells.items():
+        count = sum(map(len, rows.values()))
+        listed = "; ".join(f"{row} on {', '.join(columns)}" for row, columns in rows.items())
+        lines.append(f"{name} ({count} cell{'' if count == 1 else 's'}): {listed}")
+    return lines
+
+
 def readme_block(records: list[dict]) -> str:
     """The README's results block (without its markers): how many cells are measured, the table,
     and the plot where any cell is."""
@@ -260,6 +277,11 @@ def readme_block(records: list[dict]) -> str:
         "the write-up this project started from (see [Citation](#citation); success %, 10 "
         "demonstrations, its number of test episodes not stated; `evaluation/paper.py`).",
     ]
+    machines = fit_machines(records)
+    if machines:
+        where = "Where the fits ran (each cell's `machine.fit`; its test ran on `machine.test`):"
+        lines += ["", where, ""]
+        lines += [f"- {line}" for line in machines]
     if count:
         lines += ["", "![results table as bars](results/table1.png)"]
     commands = cell_commands(records)
