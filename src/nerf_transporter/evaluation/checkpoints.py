@@ -96,8 +96,12 @@ def validation_records(
     records = []
     for step, path in checkpoint_steps(run_dir):
         rate = validation_score(torch.load(path, map_location="cpu", weights_only=True, mmap=True))
-        evaluated = evaluated_validation(run_dir, path, episodes, setting) if setting else None
-        if rate is None and evaluated is not None:
+        evaluated = (
+            evaluated_validation(run_dir, path, episodes, setting)
+            if rate is None and setting
+            else None
+        )
+        if evaluated is not None:
             rate = evaluated["success_rate"] if not evaluated["errors"] else -math.inf
         if rate is None:
             continue  # saved without a validation round (e.g. by an interrupted fit)
