@@ -92,13 +92,10 @@ def fake_test(run_dir, split, episodes, *, only, errors=0, **kwargs):
     for path in only:
         step = torch.load(path, weights_only=True)["global_step"]
         wins = VALIDATION_SUCCESSES[step] if split == "validation" else None
+        outcomes = [i < wins if wins is not None else i % 2 == 0 for i in range(episodes)]
         results = [
-            {
-                "seed": 2 * i + 1,
-                "success": i < wins if wins is not None else i % 2 == 0,
-                "failure": "missed",
-            }
-            for i in range(episodes)
+            {"seed": 2 * i + 1, "success": won, "failure": None if won else "missed"}
+            for i, won in enumerate(outcomes)
         ]
         for result in results[:errors]:
             result |= {"success": False, "error": "ValueError: broken cache"}
