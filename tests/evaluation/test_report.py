@@ -256,14 +256,20 @@ def test_report_names_a_corrupt_results_file(logs, capsys):
     assert str(bad) in capsys.readouterr().err
 
 
-def test_validation_plots_draw_one_line_per_cell_that_holds_its_rounds(tmp_path):
+def test_validation_plots_and_tables_hold_each_cell_with_rounds(tmp_path, capsys):
     results = tmp_path / "results"
     write_cell(
         results, "mira", "block-insertion", "normal", 81, 100, "nerf", [(500, 0.2), (1000, 1.0)]
     )
     write_cell(results, "form2fit", "block-insertion", "normal", 30, 100)  # no rounds: no line
     docs = tmp_path / "docs"
-    assert report_main([str(results), "--validation-plots", str(docs)]) == 0
+    assert report_main([str(results), "--validation-plots", str(docs), "--validation-tables"]) == 0
+    tables = capsys.readouterr().out.split("\n\n", 1)[1]
+    assert tables == (
+        "| block-insertion | step 500 | step 1000 | test | checkpoint step | fitted on |\n"
+        "| --- | --- | --- | --- | --- | --- |\n"
+        "| mira (ours) | 2/10 | 10/10 | 81% (100, 72-87) | - | AMD EPYC |\n"
+    )
     assert [path.name for path in docs.iterdir()] == ["validation-block-insertion.png"]
     image = cv2.cvtColor(
         cv2.imread(str(docs / "validation-block-insertion.png")), cv2.COLOR_BGR2RGB

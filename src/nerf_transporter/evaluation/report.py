@@ -9,7 +9,7 @@ in percent, and is empty where no run exists. Where several records exist for on
 wins. Below each of our rows, the paper's Table 1 value of that method (`evaluation/paper.py`).
 `--plot` draws the table as bars with their intervals and the paper's values as markers;
 `--validation-plots DIR` draws each column's validation success against training steps (the budget
-study, `docs/budget.md`); `--readme` rewrites the README's results block (between `README_START` and
+study, `docs/budget.md`) and `--validation-tables` prints them; `--readme` rewrites the README's results block (between `README_START` and
 `README_END`), with the run-cell command of each measured cell.
 """
 
@@ -238,13 +238,48 @@ def validation_plot(task: str, setting: str, cells: list[tuple[str, dict]]) -> n
     )
 
 
+def fit_machine_names(record: dict) -> list[str]:
+    """The machines a cell's fit ran on, each named by its GPU, else its CPU."""
+    fits = record.get("machine", {}).get("fit") or [{}]
+    return sorted({fit.get("gpu") or fit.get("cpu") or "not recorded" for fit in fits})
+
+
+def _round_text(ran: bool, rate: float | None, episodes: int | None) -> str:
+    """A validation round as 'successes/episodes' ('-': no round at that step; 'erred')."""
+    if not ran:
+        return "-"
+    if rate is None:
+        return "erred"
+    return f"{round(rate * episodes)}/{episodes}" if episodes else f"{rate:.0%}"
+
+
+def validation_tables(records: list[dict]) -> str:
+    """Markdown, one table per column: each newest cell's validation rounds (successes of the
+    round's episodes, by step), its test, the chosen checkpoint's step and where it was fitted."""
+    tables = []
+    for (task, setting), cells in validation_curves(records).items():
+        steps = sorted({entry["step"] for _, record in cells for entry in record["validation"]})
+        header = [column_name(task, setting), *(f"step {step}" for step in steps)]
+        rows = []
+        for row, record in cells:
+            episodes = record.get("protocol", {}).get("validation_episodes")
+            rounds = {entry["step"]: entry["success_rate"] for entry in record["validation"]}
+            rounds_text = [
+                _round_text(step in rounds, rounds.get(step), episodes) for step in steps
+            ]
+            chosen = record.get("checkpoint", {}).get("step", "-")
+            machines = ", ".join(fit_machine_names(record))
+            rows.append([METHODS.get(row, row), *rounds_text, cell(record), str(chosen), machines])
+        tables.append(markdown(header + ["test", "checkpoint step", "fitted on"], rows))
+    return "\n".join(tables)
+
+
 def fit_machines(records: list[dict]) -> list[str]:
     """One line per machine the newest cells' fits ran on (its GPU, else its CPU): how many cells
     and which, by row then column as in the table."""
     cells: dict[str, dict[str, list[str]]] = {}
     for row, record in in_table_order(records):
-        fits = record.get("machine", {}).get("fit") or [{}]
-        for name in sorted({fit.get("gpu") or fit.get("cpu") or "not recorded" for fit in fits}):
+        for name in fit_machine_names(record):
             column = column_name(record["task"], record["setting"])
             cells.setdefault(name, {}).setdefault(METHODS.get(row, row), []).append(column)
     lines = []
@@ -352,6 +387,11 @@ def main(argv: list[str] | None = None) -> int:
         type=Path,
         help="also rewrite the results block of this README (between its two markers)",
     )
+    parser.add_argument(
+        "--validation-tables",
+        action="store_true",
+        help="print, after the table, each column's validation rounds per cell (docs/budget.md)",
+    )
     args = parser.parse_args(argv)
     try:
         records = load_results([Path(root) for root in args.roots])
@@ -381,4 +421,6 @@ def main(argv: list[str] | None = None) -> int:
                 return 1
     header, rows = results_table(records)
     sys.stdout.write(csv_text(header, rows) if args.csv else markdown(header, rows))
+    if args.validation_tables:
+        sys.stdout.write("\n" + validation_tables(records))
     return 0
