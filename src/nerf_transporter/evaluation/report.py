@@ -9,8 +9,9 @@ in percent, and is empty where no run exists. Where several records exist for on
 wins. Below each of our rows, the paper's Table 1 value of that method (`evaluation/paper.py`).
 `--plot` draws the table as bars with their intervals and the paper's values as markers;
 `--validation-plots DIR` draws each column's validation success against training steps (the budget
-study, `docs/budget.md`) and `--validation-tables` prints them; `--readme` rewrites the README's results block (between `README_START` and
-`README_END`), with the run-cell command of each measured cell.
+study, `docs/budget.md`) and `--validation-tables` prints them; `--readme` rewrites the README's
+results block (between `README_START` and `README_END`), with the run-cell command of each
+measured cell and the machine each cell's fit ran on.
 """
 
 from __future__ import annotations
