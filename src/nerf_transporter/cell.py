@@ -182,10 +182,9 @@ def without_closed_loop(config: dict[str, Any]) -> dict[str, Any]:
     """`config` for a fit on a machine without PyBullet: no closed-loop validation callback, and
     the checkpoints at the same steps, all kept, unscored (run-cell validates them afterwards)."""
     config = copy.deepcopy(config)
+    closed_loop = config_callbacks(config, CALLBACK)
     trainer = config["trainer"]
-    trainer["callbacks"] = [
-        c for c in trainer["callbacks"] if c not in config_callbacks(config, CALLBACK)
-    ]
+    trainer["callbacks"] = [c for c in trainer["callbacks"] if c not in closed_loop]
     checkpoint = _callback(config, CHECKPOINT)
     for key in ("monitor", "mode"):
         checkpoint.pop(key, None)

@@ -145,8 +145,9 @@ def latest_checkpoint(runs: Path) -> Path:
         checkpoints = list((path / "checkpoints").glob("*.ckpt"))
         if number is not None and checkpoints:
             last = path / "checkpoints" / "last.ckpt"
-            furthest = max(checkpoints, key=lambda p: (checkpoint_step(p), p.stat().st_mtime))
-            found.append((number, last if last.is_file() else furthest))
+            if not last.is_file():
+                last = max(checkpoints, key=lambda p: (checkpoint_step(p), p.stat().st_mtime))
+            found.append((number, last))
     if not found:
         raise NoRunToResumeError(
             f"--ckpt_path last: no earlier run to resume, no checkpoint under {runs}/version_N/"
