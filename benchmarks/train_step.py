@@ -5,6 +5,7 @@ Full size: 320 x 160 images (pixel size 0.003125 m), 36 rotations, 64 x 64 crops
 tensors of the documented batch layout (the step time does not depend on the content).
 
     python benchmarks/train_step.py [--json] [--width 16] [--repeats 3] [--device cpu] [--threads 1]
+                                    [--precision bf16-mixed] [--profile]
 
 Each step's floating-point operations (forward + backward, counted once by
 `torch.utils.flop_counter`: convolutions and matrix products, not the FFTs) are reported beside its
@@ -25,6 +26,8 @@ import time
 
 import numpy as np
 import torch
+from torch.autograd import DeviceType
+from torch.profiler import ProfilerActivity, profile
 from torch.utils.flop_counter import FlopCounterMode
 
 from nerf_transporter import geometry as g
@@ -62,28 +65,75 @@ def synchronise(device: torch.device) -> None:
         torch.cuda.synchronize()
 
 
-def time_steps(method: Method, batch: dict, repeats: int, device: torch.device) -> float:
-    """Median seconds of forward + backward + Adam step (after one warm-up step)."""
+def autocast(device: torch.device, precision: str) -> torch.autocast:
+    """The forward pass's precision as Lightning's `trainer.precision` sets it."""
+    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16-mixed")
+
+
+def train_step(
+    method: Method,
+    optimiser: torch.optim.Optimizer,
+    batch: dict,
+    device: torch.device,
+    precision: str,
+) -> None:
+    """Forward + backward + Adam step, as Lightning runs it at `precision`."""
+    with autocast(device, precision):
+        loss = method.losses(batch)["loss"]
+    optimiser.zero_grad()
+    loss.backward()
+    optimiser.step()
+
+
+def time_steps(
+    method: Method, batch: dict, repeats: int, device: torch.device, precision: str
+) -> float:
+    """Median seconds of a training step (after one warm-up step)."""
     batch = {key: value.to(device) for key, value in batch.items()}
     optimiser = method.configure_optimizers()
     times = []
     for _ in range(repeats + 1):
         synchronise(device)
         start = time.perf_counter()
-        loss = method.losses(batch)["loss"]
-        optimiser.zero_grad()
-        loss.backward()
-        optimiser.step()
+        train_step(method, optimiser, batch, device, precision)
         synchronise(device)
         times.append(time.perf_counter() - start)
     return statistics.median(times[1:])
 
 
-def step_gflop(method: Method, batch: dict, device: torch.device) -> float:
+def profile_steps(
+    method: Method, batch: dict, device: torch.device, precision: str, steps: int = 3
+) -> dict:
+    """Per training step: GPU kernels launched, GPU busy time and host time (`torch.profiler`),
+    which tell a step waiting on launches (busy << step) from one waiting on arithmetic."""
+    batch = {key: value.to(device) for key, value in batch.items()}
+    optimiser = method.configure_optimizers()
+    train_step(method, optimiser, batch, device, precision)
+    synchronise(device)
+    activities = [ProfilerActivity.CPU]
+    if device.type == "cuda":
+        activities.append(ProfilerActivity.CUDA)
+    start = time.perf_counter()
+    with profile(activities=activities) as profiler:
+        for _ in range(steps):
+            train_step(method, optimiser, batch, device, precision)
+        synchronise(device)
+    wall = time.perf_counter() - start
+    kernels = [e for e in profiler.events() if e.device_type == DeviceType.CUDA]
+    return {
+        "kernels": round(len(kernels) / steps),
+        "gpu_busy_ms": round(sum(e.device_time for e in kernels) / steps / 1000, 2),
+        "profiled_step_ms": round(wall / steps * 1000, 2),
+    }
+
+
+def step_gflop(method: Method, batch: dict, device: torch.device, precision: str) -> float:
     """Floating-point operations of one forward + backward pass, in GFLOP."""
     batch = {key: value.to(device) for key, value in batch.items()}
     with FlopCounterMode(display=False) as counter:
-        method.losses(batch)["loss"].backward()
+        with autocast(device, precision):
+            loss = method.losses(batch)["loss"]
+        loss.backward()
     method.zero_grad(set_to_none=True)
     return counter.get_total_flops() / 1e9
 
@@ -119,6 +169,17 @@ def main() -> None:
     parser.add_argument(
         "--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)"
     )
+    parser.add_argument(
+        "--precision",
+        default="32-true",
+        choices=["32-true", "bf16-mixed"],
+        help="training precision, as trainer.precision (configs/gpu/bf16.yaml: bf16-mixed)",
+    )
+    parser.add_argument(
+        "--profile",
+        action="store_true",
+        help="also profile 3 steps: GPU kernels, GPU busy time and host time per step",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args()
     if args.threads is not None:
@@ -132,6 +193,7 @@ def main() -> None:
         "n_rotations": 36,
         "crop_size": 64,
         "negative_views": args.negative_views,
+        "precision": args.precision,
         "step_seconds": {},
         "step_gflop": {},
     }
@@ -144,8 +206,14 @@ def main() -> None:
         if cls.input_kind != "state":
             results["width"] = method.hparams["width"]
         batch = full_size_batch(cls.input_kind, args.negative_views, device)
-        results["step_gflop"][name] = round(step_gflop(method, batch, device), 3)
-        results["step_seconds"][name] = round(time_steps(method, batch, args.repeats, device), 4)
+        results["step_gflop"][name] = round(step_gflop(method, batch, device, args.precision), 3)
+        results["step_seconds"][name] = round(
+            time_steps(method, batch, args.repeats, device, args.precision), 4
+        )
+        if args.profile:
+            results.setdefault("profile", {})[name] = profile_steps(
+                method, batch, device, args.precision
+            )
         if name == "mira":
             results["mira_act_49_views_seconds"] = round(
                 time_mira_act(method, args.repeats, device), 4
@@ -156,6 +224,13 @@ def main() -> None:
                 f"{name:<16} step {seconds:.3f} s  {gflop:.3g} GFLOP  {gflop / seconds:.3g} GFLOP/s",
                 flush=True,
             )
+            if args.profile:
+                found = results["profile"][name]
+                print(
+                    f"{'':<16} profiled: {found['kernels']} GPU kernels, GPU busy "
+                    f"{found['gpu_busy_ms']} ms of a {found['profiled_step_ms']} ms step",
+                    flush=True,
+                )
     results["load_average_after"] = os.getloadavg()[0]
     if args.json:
         print(json.dumps(results, indent=2))

@@ -78,6 +78,19 @@ def test_cross_correlate_gradients_match_direct_convolution():
         assert torch.allclose(correlate_spectrum(query, spectrum, 6), direct, atol=1e-9)
 
 
+def test_cross_correlate_takes_bfloat16_features():
+    """As CUDA's bf16 autocast (configs/gpu/bf16.yaml) hands them over: correlated in float32,
+    gradients back in bfloat16."""
+    torch.manual_seed(0)
+    query = torch.randn(1, 2, 3, 20, 15).bfloat16().requires_grad_()
+    kernels = torch.randn(1, 4, 3, 6, 6).bfloat16().requires_grad_()
+    out = cross_correlate(query, kernels)
+    assert out.dtype == torch.float32
+    assert torch.equal(out, cross_correlate(query.float(), kernels.float()))
+    out.sum().backward()
+    assert query.grad.dtype == kernels.grad.dtype == torch.bfloat16
+
+
 def test_transport_logits_shape_and_one_softmax_over_views():
     torch.manual_seed(0)
     transport = Transport(feature_channels=3, n_rotations=4, crop_size=8, width=4)

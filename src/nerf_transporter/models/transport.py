@@ -182,8 +182,13 @@ class _CrossCorrelation(torch.autograd.Function):
 
 def cross_correlate(query: torch.Tensor, kernels: torch.Tensor) -> torch.Tensor:
     """Centred cross-correlation, summed over channels: query [B, V, C, H, W], kernels
-    [B, R, C, k, k] -> [B, V, R, H, W] (see `correlate_spectrum`)."""
-    return _CrossCorrelation.apply(query, kernels)
+    [B, R, C, k, k] -> [B, V, R, H, W] (see `correlate_spectrum`).
+
+    At least float32: the FFTs have no bfloat16 kernels, and under CUDA's bf16 autocast
+    (configs/gpu/bf16.yaml) the features arrive in bfloat16 (CPU autocast casts FFTs itself).
+    """
+    dtype = torch.promote_types(torch.promote_types(query.dtype, kernels.dtype), torch.float32)
+    return _CrossCorrelation.apply(query.to(dtype), kernels.to(dtype))
 
 
 class Transport(nn.Module):
