@@ -104,8 +104,9 @@ def time_steps(
 def profile_steps(
     method: Method, batch: dict, device: torch.device, precision: str, steps: int = 3
 ) -> dict:
-    """Per training step: GPU kernels launched, GPU busy time and host time (`torch.profiler`),
-    which tell a step waiting on launches (busy << step) from one waiting on arithmetic."""
+    """Per training step: GPU kernels launched, GPU busy time and wall time under `torch.profiler`
+    (which adds host overhead of its own), which tell a step waiting on launches (busy << step)
+    from one waiting on arithmetic."""
     batch = {key: value.to(device) for key, value in batch.items()}
     optimiser = method.configure_optimizers()
     train_step(method, optimiser, batch, device, precision)
