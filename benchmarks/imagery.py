@@ -1,6 +1,13 @@
 """Mental-imagery benchmark: fit time, 49-view render time and quality against the simulator.
 
     python benchmarks/imagery.py --task block-insertion --episodes 2 --json
+    python benchmarks/imagery.py --dataset data/block-insertion-normal-train --episodes 4
+
+With `--dataset` (no simulator needed: a GPU machine without PyBullet) the scenes are a NeRF
+dataset's episodes: their stored 30 RGB views are fitted again with the dataset's own imagery
+settings on this device, and the truth is the simulator's renders stored beside the imagery
+(`truth_view_ids`, the pick and place views); the stored imagery, fitted where the dataset was made,
+is scored against the same truth, so the two fits compare on identical inputs.
 
 Per scene: fit seconds, render seconds for the whole view grid, PSNR of the top-down view and the
 mean over the grid, height MAE (mm) overall and on object pixels (top-down view). Times are wall
@@ -17,6 +24,8 @@ import argparse
 import json
 import statistics
 import time
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -31,7 +40,6 @@ from nerf_transporter.imagery import (
     render_views,
     resolve_device,
 )
-from nerf_transporter.sim import make_env
 
 
 def _synchronize(config: ImageryConfig) -> None:
@@ -40,7 +48,22 @@ def _synchronize(config: ImageryConfig) -> None:
         torch.cuda.synchronize(device)
 
 
+def fit_and_render(nerf: dict, grid: np.ndarray, config: ImageryConfig) -> tuple[dict, tuple]:
+    """Fit the views `nerf` (rgb, intrinsics, cam_to_world) and render `grid`: times, images."""
+    start, cpu = time.perf_counter(), time.process_time()
+    scene = fit_scene(nerf["rgb"], nerf["intrinsics"], nerf["cam_to_world"], config)
+    _synchronize(config)
+    fit_s, fit_cpu_s = time.perf_counter() - start, time.process_time() - cpu
+    start, cpu = time.perf_counter(), time.process_time()
+    images = render_views(scene, grid, config)
+    render_s, render_cpu_s = time.perf_counter() - start, time.process_time() - cpu
+    times = {"fit_s": fit_s, "render_s": render_s, "fit_cpu_s": fit_cpu_s}
+    return times | {"render_cpu_s": render_cpu_s, "views": len(grid)}, images
+
+
 def measure_scene(task: str, setting: str, seed: int, config: ImageryConfig) -> dict:
+    from nerf_transporter.sim import make_env  # PyBullet: not needed with --dataset
+
     env = make_env(task, setting, rigs=("nerf",))
     try:
         obs, _ = env.reset(seed=seed)
@@ -48,14 +71,7 @@ def measure_scene(task: str, setting: str, seed: int, config: ImageryConfig) -> 
         truth = [env.render_orthographic(roll, pitch, config.pixel_size) for roll, pitch in grid]
     finally:
         env.close()
-    nerf = obs["nerf"]
-    start, cpu = time.perf_counter(), time.process_time()
-    scene = fit_scene(nerf["rgb"], nerf["intrinsics"], nerf["cam_to_world"], config)
-    _synchronize(config)
-    fit_s, fit_cpu_s = time.perf_counter() - start, time.process_time() - cpu
-    start, cpu = time.perf_counter(), time.process_time()
-    colour, height = render_views(scene, grid, config)
-    render_s, render_cpu_s = time.perf_counter() - start, time.process_time() - cpu
+    times, (colour, height) = fit_and_render(obs["nerf"], grid, config)
     top = geometry.top_down_view_index(grid)
     psnrs = [psnr(colour[v], truth[v][0]) for v in range(len(grid))]
     overall, on_objects = height_mae_mm(height[top], truth[top][1])
@@ -63,11 +79,7 @@ def measure_scene(task: str, setting: str, seed: int, config: ImageryConfig) -> 
     return {
         "task": task,
         "seed": seed,
-        "fit_s": fit_s,
-        "render_s": render_s,
-        "fit_cpu_s": fit_cpu_s,
-        "render_cpu_s": render_cpu_s,
-        "views": len(grid),
+        **times,
         "psnr_db": psnrs[top],
         "psnr_grid_db": float(np.mean(psnrs)),
         "height_mae_mm": overall,
@@ -76,11 +88,60 @@ def measure_scene(task: str, setting: str, seed: int, config: ImageryConfig) -> 
     }
 
 
+def truth_errors(colour: np.ndarray, height: np.ndarray, stored: Any) -> dict:
+    """Mean PSNR and height errors of imagery [V, ...] on the views a NeRF dataset stores the
+    simulator's renders of (`truth_view_ids`)."""
+    views = stored["truth_view_ids"]
+    truth_height = stored["truth_height"].astype(np.float32)
+    errors = [height_mae_mm(height[v], truth_height[i]) for i, v in enumerate(views)]
+    return {
+        "psnr_db": float(
+            np.mean([psnr(colour[v], stored["truth_colour"][i]) for i, v in enumerate(views)])
+        ),
+        "height_mae_mm": float(np.mean([overall for overall, _ in errors])),
+        "object_height_mae_mm": float(np.nanmean([on_objects for _, on_objects in errors])),
+    }
+
+
+def dataset_config(dataset: Path, overrides: dict) -> ImageryConfig:
+    """The imagery settings a NeRF dataset was made with (dataset.json), with `overrides`."""
+    manifest = json.loads((dataset / "dataset.json").read_text())
+    if manifest.get("imagery", {}).get("kind") != "nerf":
+        raise SystemExit(f"{dataset} is not a NeRF-imagery dataset (dataset.json imagery.kind)")
+    settings = manifest["imagery"]["config"]
+    settings = {k: tuple(v) if isinstance(v, list) else v for k, v in settings.items()}
+    return ImageryConfig(**(settings | overrides))
+
+
+def measure_dataset_scene(episode: Path, config: ImageryConfig) -> dict:
+    """Fit an episode's stored views again here; score it and the stored imagery on the truth."""
+    stored = np.load(episode / "imagery.npz")
+    times, (colour, height) = fit_and_render(
+        dict(np.load(episode / "nerf_views.npz")), stored["views"], config
+    )
+    here = truth_errors(colour, height, stored)
+    before = truth_errors(stored["colour"], stored["height"].astype(np.float32), stored)
+    return {
+        "task": episode.parent.name,
+        "seed": int(episode.name.split("-")[-1]),
+        **times,
+        **here,
+        **{f"stored_{key}": value for key, value in before.items()},
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", nargs="+", default=["block-insertion"])
     parser.add_argument("--setting", default="normal")
     parser.add_argument("--episodes", type=int, default=2, help="scenes per task (test seeds)")
+    parser.add_argument(
+        "--dataset",
+        type=Path,
+        action="append",
+        help="a NeRF dataset folder whose first --episodes episodes to fit again (repeatable; "
+        "replaces --task)",
+    )
     parser.add_argument("--iterations", type=int, default=None, help="override the fit iterations")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     parser.add_argument("--device", default="auto", help="auto (CUDA when available), cpu, cuda")
@@ -90,13 +151,29 @@ def main(argv: list[str] | None = None) -> int:
     overrides = {"progress": False, "threads": args.threads, "device": args.device}
     if args.iterations is not None:
         overrides["iterations"] = args.iterations
-    config = ImageryConfig(**overrides)
+    datasets = args.dataset or []
+    config = dataset_config(datasets[0], overrides) if datasets else ImageryConfig(**overrides)
     if args.threads:
         torch.set_num_threads(args.threads)
     device = describe_device(resolve_device(config.device))
     print(device_line(device), flush=True)
     per_scene = []
-    for task in args.task:
+    for dataset in datasets:
+        config = dataset_config(dataset, overrides)
+        episodes = sorted(path for path in dataset.iterdir() if (path / "imagery.npz").exists())
+        for episode in episodes[: args.episodes]:
+            result = measure_dataset_scene(episode, config)
+            per_scene.append(result)
+            print(
+                f"{dataset.name} {episode.name}: fit {result['fit_s']:.1f} s, render "
+                f"{result['views']} views {result['render_s']:.1f} s; on the truth views: PSNR "
+                f"{result['psnr_db']:.2f} dB (stored {result['stored_psnr_db']:.2f}), height MAE "
+                f"{result['height_mae_mm']:.2f} mm (stored {result['stored_height_mae_mm']:.2f}), "
+                f"objects {result['object_height_mae_mm']:.2f} mm "
+                f"(stored {result['stored_object_height_mae_mm']:.2f})",
+                flush=True,
+            )
+    for task in [] if datasets else args.task:
         for seed in (splits.split_seed("test", i) for i in range(args.episodes)):
             result = measure_scene(task, args.setting, seed, config)
             per_scene.append(result)
@@ -110,6 +187,8 @@ def main(argv: list[str] | None = None) -> int:
             )
     keys = ("fit_s", "render_s", "fit_cpu_s", "render_cpu_s", "psnr_db", "height_mae_mm")
     keys += ("object_height_mae_mm",)
+    if datasets:
+        keys += ("stored_psnr_db", "stored_height_mae_mm", "stored_object_height_mae_mm")
     summary = {key: statistics.median(r[key] for r in per_scene) for key in keys}
     summary.update(device=device, per_scene=per_scene)
     if args.json:

@@ -5,7 +5,10 @@ Full size: 320 x 160 images (pixel size 0.003125 m), 36 rotations, 64 x 64 crops
 tensors of the documented batch layout (the step time does not depend on the content).
 
     python benchmarks/train_step.py [--json] [--width 16] [--repeats 3] [--device cpu] [--threads 1]
-                                    [--precision bf16-mixed] [--profile]
+                                    [--precision bf16-mixed] [--cuda-graphs] [--profile]
+
+`--cuda-graphs` runs the networks' training passes as CUDA graphs, as `model.init_args.cuda_graphs`
+(configs/gpu/cuda_graphs.yaml) does in a fit; the optimiser is the methods' own (fused Adam on CUDA).
 
 Each step's floating-point operations (forward + backward, counted once by
 `torch.utils.flop_counter`: convolutions and matrix products, not the FFTs) are reported beside its
@@ -33,6 +36,7 @@ from torch.utils.flop_counter import FlopCounterMode
 from nerf_transporter import geometry as g
 from nerf_transporter.device_info import describe_device, device_line
 from nerf_transporter.methods import METHODS, Method
+from nerf_transporter.models.graphs import graph_training_passes, to_channels_last
 
 STATE_DIM = 28
 
@@ -121,10 +125,22 @@ def profile_steps(
         synchronise(device)
     wall = time.perf_counter() - start
     kernels = [e for e in profiler.events() if e.device_type == DeviceType.CUDA]
+    on_gpu = device.type == "cuda"
+    busiest = sorted(
+        profiler.key_averages(),
+        key=lambda e: e.device_time_total if on_gpu else e.self_cpu_time_total,
+        reverse=True,
+    )
     return {
         "kernels": round(len(kernels) / steps),
         "gpu_busy_ms": round(sum(e.device_time for e in kernels) / steps / 1000, 2),
         "profiled_step_ms": round(wall / steps * 1000, 2),
+        "busiest_ops_ms": {  # GPU time on a GPU, else the host's own time
+            e.key[:60]: round(
+                (e.device_time_total if on_gpu else e.self_cpu_time_total) / steps / 1000, 2
+            )
+            for e in busiest[:12]
+        },
     }
 
 
@@ -177,6 +193,11 @@ def main() -> None:
         help="training precision, as trainer.precision (configs/gpu/bf16.yaml: bf16-mixed)",
     )
     parser.add_argument(
+        "--cuda-graphs",
+        action="store_true",
+        help="run the networks' training passes as CUDA graphs (model.init_args.cuda_graphs)",
+    )
+    parser.add_argument(
         "--profile",
         action="store_true",
         help="also profile 3 steps: GPU kernels, GPU busy time and host time per step",
@@ -195,6 +216,7 @@ def main() -> None:
         "crop_size": 64,
         "negative_views": args.negative_views,
         "precision": args.precision,
+        "cuda_graphs": args.cuda_graphs,
         "step_seconds": {},
         "step_gflop": {},
     }
@@ -208,6 +230,10 @@ def main() -> None:
             results["width"] = method.hparams["width"]
         batch = full_size_batch(cls.input_kind, args.negative_views, device)
         results["step_gflop"][name] = round(step_gflop(method, batch, device, args.precision), 3)
+        if args.cuda_graphs and cls.input_kind != "state":
+            for net in method.networks():  # captured in the warm-up step, outside the counter
+                to_channels_last(net)
+                graph_training_passes(net)
         results["step_seconds"][name] = round(
             time_steps(method, batch, args.repeats, device, args.precision), 4
         )
@@ -229,7 +255,9 @@ def main() -> None:
                 found = results["profile"][name]
                 print(
                     f"{'':<16} profiled: {found['kernels']} GPU kernels, GPU busy "
-                    f"{found['gpu_busy_ms']} ms of a {found['profiled_step_ms']} ms step",
+                    f"{found['gpu_busy_ms']} ms of a {found['profiled_step_ms']} ms step; "
+                    "busiest: "
+                    + ", ".join(f"{op} {ms} ms" for op, ms in found["busiest_ops_ms"].items()),
                     flush=True,
                 )
     results["load_average_after"] = os.getloadavg()[0]

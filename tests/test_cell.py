@@ -198,6 +198,9 @@ def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol
     monkeypatch.setattr(cell_module, "resolve_config", lambda files: wider)
     with pytest.raises(CellError, match=r"model \{\} there, \{'width': 64\} here"):
         run()
+    graphed = {**CONFIG, "model": {"init_args": {"lr": 1.0e-4, "cuda_graphs": True}}}
+    monkeypatch.setattr(cell_module, "resolve_config", lambda files: graphed)
+    assert run() == (cell, None)  # CUDA graphs change how, not what: the same cell
     monkeypatch.setattr(cell_module, "resolve_config", lambda files: CONFIG)
 
     created = stored["created"]

@@ -165,6 +165,10 @@ LOADER = {"data.init_args.num_workers", "data.init_args.pin_memory"}
         ),
         # none of these keys is part of a cell's protocol (cell.cell_protocol): same run folder
         (("gpu/shared.yaml",), WHERE | LOADER),
+        (
+            ("gpu/shared.yaml", "gpu/cuda_graphs.yaml"),
+            WHERE | LOADER | {"model.init_args.cuda_graphs"},
+        ),
     ],
 )
 def test_gpu_overlays_change_only_where_and_how_fast(stacked, expected):

@@ -61,14 +61,15 @@ MONITOR = "eval/success_rate"
 SEGMENTS = "fit-segments.json"  # in a run folder: one entry per fit started there
 LOGGER = "lightning.pytorch.loggers.TensorBoardLogger"
 # model arguments outside the protocol's "model" entry (the architecture): lr, pixel_size and
-# n_rotations are protocol keys of their own; view_chunk (memory) and log_images_every_n_steps
-# (logging) change nothing that is learned
+# n_rotations are protocol keys of their own; view_chunk (memory), log_images_every_n_steps
+# (logging) and cuda_graphs (how the GPU runs the same arithmetic) change nothing that is learned
 MODEL_ARGS_NOT_ARCHITECTURE = (
     "lr",
     "pixel_size",
     "n_rotations",
     "view_chunk",
     "log_images_every_n_steps",
+    "cuda_graphs",
 )
 
 

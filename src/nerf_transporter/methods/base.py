@@ -12,7 +12,12 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from nerf_transporter import geometry as g
 from nerf_transporter.data.preprocess import COLOUR_MEAN, COLOUR_STD, network_input
 from nerf_transporter.drawing import heatmap_picture
-from nerf_transporter.models import Attention, Transport, pixel_cross_entropy
+from nerf_transporter.models import Attention, ResNet43_8s, Transport, pixel_cross_entropy
+from nerf_transporter.models.graphs import (
+    graph_training_passes,
+    to_channels_last,
+    ungraph_training_passes,
+)
 from nerf_transporter.models.transport import placement_cross_entropy, unravel_argmax
 
 Batch = dict[str, torch.Tensor]
@@ -94,7 +99,8 @@ class Method(L.LightningModule):
         """Nothing: a test batch holds episode seeds, played by the closed-loop test callback."""
 
     def configure_optimizers(self) -> torch.optim.Optimizer:
-        return torch.optim.Adam(self.parameters(), lr=self.lr)
+        """Adam; on CUDA its fused kernel (the same update in one launch instead of dozens)."""
+        return torch.optim.Adam(self.parameters(), lr=self.lr, fused=self.device.type == "cuda")
 
     def _log_losses(
         self, stage: str, losses: dict[str, torch.Tensor], batch: Batch, sync_dist: bool = False
@@ -172,6 +178,9 @@ class ImageMethod(Method):
     """A method on top-down images: their pixel size, the rotation bins, crop size and FCN width.
 
     `lightning fit` takes `pixel_size` and `n_rotations` from the data (`cli.py` links them).
+    With `cuda_graphs` (configs/gpu/cuda_graphs.yaml), a fit on CUDA runs each ResNet's training
+    forward and backward as captured CUDA graphs (`models.graphs`): the same arithmetic in two
+    launches instead of hundreds. It does nothing on the CPU or under autocast (bf16-mixed).
     """
 
     def __init__(
@@ -180,6 +189,7 @@ class ImageMethod(Method):
         n_rotations: int = g.N_ROTATIONS,
         crop_size: int = 64,
         width: int = DEFAULT_WIDTH,
+        cuda_graphs: bool = False,
         **kwargs: Any,
     ) -> None:
         super().__init__(**kwargs)
@@ -187,6 +197,27 @@ class ImageMethod(Method):
         self.n_rotations = n_rotations
         self.crop_size = crop_size
         self.width = width
+        self.cuda_graphs = cuda_graphs
+
+    def networks(self) -> list[ResNet43_8s]:
+        """The method's fully convolutional networks (what `cuda_graphs` captures)."""
+        return [module for module in self.modules() if isinstance(module, ResNet43_8s)]
+
+    def on_train_start(self) -> None:
+        if not self.cuda_graphs or self.device.type != "cuda":
+            return
+        if self.trainer.accumulate_grad_batches > 1:
+            raise ValueError(
+                "model.init_args.cuda_graphs cannot accumulate gradients (the graphed backward "
+                "reuses its gradient buffers); set trainer.accumulate_grad_batches to 1"
+            )
+        for net in self.networks():
+            to_channels_last(net, self.trainer.optimizers)
+            graph_training_passes(net)
+
+    def on_train_end(self) -> None:
+        for net in self.networks():
+            ungraph_training_passes(net)
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         """Refuse a checkpoint trained at another pixel size or number of rotation bins."""
