@@ -48,6 +48,10 @@ TOOLS: dict[str, tuple[str, str]] = {
         "nerf_transporter.evaluation.failures:main",
         "why the cells' test episodes failed: pick, aim (position / tilt / yaw) or settling",
     ),
+    "compare-cells": (
+        "nerf_transporter.evaluation.compare:main",
+        "cells of one column on their common test seeds (exact McNemar p)",
+    ),
     "evaluate-checkpoints": (
         "nerf_transporter.evaluation.checkpoints:main",
         "closed-loop success of every checkpoint of a run, to pick the one to test",

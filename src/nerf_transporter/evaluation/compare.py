@@ -1,0 +1,71 @@
+"""`nerf-transporter compare-cells FIRST OTHER [...]`: cells of one column on their common test
+seeds, e.g. one method under two budgets, or fitted on two machines.
+
+Two rates of 100 episodes each differ by chance by up to ~13 points; on the same seeds only the
+seeds one cell succeeded on and the other failed decide between them (exact McNemar test,
+`metrics.paired_comparison`). The first cell is compared with each other one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from nerf_transporter.console import HelpFormatter
+from nerf_transporter.evaluation.metrics import paired_comparison
+from nerf_transporter.evaluation.report import (
+    cell,
+    column_name,
+    fit_machine_names,
+    load_cells,
+    markdown,
+    test_outcomes,
+)
+
+HEADER = ["cell", "test", "checkpoint step", "fitted on", "seeds", "both", "first only"]
+HEADER += ["this only", "neither", "p"]
+
+
+def comparison_table(cells: list[dict]) -> tuple[list[str], list[list[str]]]:
+    """The first cell, then each other one against it on their common test seeds."""
+    tasks = {(record["task"], record["setting"]) for record in cells}
+    if len(tasks) > 1:
+        columns = ", ".join(sorted(column_name(*task) for task in tasks))
+        raise ValueError(f"the cells belong to different columns ({columns}): compare one column")
+    first = test_outcomes(cells[0])
+    rows = []
+    for index, record in enumerate(cells):
+        described = [
+            record["path"],
+            cell(record),
+            str(record["checkpoint"]["step"]),
+            ", ".join(fit_machine_names(record)),
+        ]
+        if index == 0:
+            rows.append(described + ["-"] * 6)
+            continue
+        paired = paired_comparison(first, test_outcomes(record))
+        counts = [str(paired[key]) for key in ("seeds", "both", "first_only", "second_only")]
+        rows.append(described + counts + [str(paired["neither"]), f"{paired['p_value']:.2g}"])
+    return HEADER, rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="nerf-transporter compare-cells",
+        description="Cells of one column on their common test seeds: how many seeds both, only "
+        "the first, only the other and neither succeeded on, and the exact McNemar p-value.",
+        formatter_class=HelpFormatter,
+    )
+    parser.add_argument("cells", nargs="+", type=Path, help="two or more run-cell cell files")
+    args = parser.parse_args(argv)
+    try:
+        if len(args.cells) < 2 or not all(path.is_file() for path in args.cells):
+            raise ValueError("give two or more cell files (results/<column>/<row>.json)")
+        header, rows = comparison_table(load_cells(args.cells))
+    except (OSError, ValueError) as error:
+        print(f"nerf-transporter compare-cells: {error}", file=sys.stderr)
+        return 2
+    sys.stdout.write(markdown(header, rows))
+    return 0
