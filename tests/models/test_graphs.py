@@ -63,9 +63,10 @@ def test_channels_last_parameters_keep_their_adam_moments():
         assert torch.allclose(got, want)
 
 
-def test_cuda_graphs_option_leaves_a_cpu_model_eager():
+def test_cuda_graphs_option_leaves_a_cpu_model_eager_and_says_so():
     method = METHODS["mira"](width=4, cuda_graphs=True)
-    method.on_train_start()
+    with pytest.warns(UserWarning, match="trains on cpu, not CUDA"):
+        method.on_train_start()
     assert method.networks() and not any(is_graphed(net) for net in method.networks())
 
 

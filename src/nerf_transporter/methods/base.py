@@ -8,6 +8,7 @@ import lightning as L
 import numpy as np
 import torch
 from lightning.pytorch.loggers import TensorBoardLogger
+from lightning.pytorch.utilities import rank_zero_warn
 
 from nerf_transporter import geometry as g
 from nerf_transporter.data.preprocess import COLOUR_MEAN, COLOUR_STD, network_input
@@ -26,6 +27,7 @@ Action = dict[str, g.Pose]
 # the 2-core development CPU (README, "Speed"); Transporter networks use 64 (set
 # model.init_args.width on a GPU).
 DEFAULT_WIDTH = 16
+FULL_PRECISION = ("32-true", "32")  # trainer.precision values without autocast
 
 
 class Method(L.LightningModule):
@@ -204,8 +206,19 @@ class ImageMethod(Method):
         return [module for module in self.modules() if isinstance(module, ResNet43_8s)]
 
     def on_train_start(self) -> None:
-        if not self.cuda_graphs or self.device.type != "cuda":
+        if not self.cuda_graphs:
             return
+        if self.device.type != "cuda":
+            rank_zero_warn(
+                f"model.init_args.cuda_graphs: this fit trains on {self.device.type}, not CUDA, "
+                "so the networks run eagerly"
+            )
+            return
+        if str(self.trainer.precision) not in FULL_PRECISION:
+            rank_zero_warn(
+                f"model.init_args.cuda_graphs: under trainer.precision {self.trainer.precision} "
+                "(autocast) the networks run eagerly, without CUDA graphs"
+            )
         if self.trainer.accumulate_grad_batches > 1:
             raise ValueError(
                 "model.init_args.cuda_graphs cannot accumulate gradients (the graphed backward "
