@@ -2,6 +2,7 @@
 and leave every other call (CPU, inference, other shapes) and the parameters alone."""
 
 import copy
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -68,6 +69,25 @@ def test_cuda_graphs_option_leaves_a_cpu_model_eager_and_says_so():
     with pytest.warns(UserWarning, match="trains on cpu, not CUDA"):
         method.on_train_start()
     assert method.networks() and not any(is_graphed(net) for net in method.networks())
+
+
+@pytest.mark.parametrize(
+    ("trainer", "refused"),
+    [
+        (dict(accumulate_grad_batches=2, world_size=1), "accumulate gradients"),
+        (dict(accumulate_grad_batches=1, world_size=2), "for a fit on one GPU"),
+    ],
+)
+def test_cuda_graphs_refuse_what_they_cannot_capture(trainer, refused, monkeypatch):
+    method = METHODS["mira"](width=4, cuda_graphs=True)
+    monkeypatch.setattr(method, "_device", torch.device("cuda", 0))  # no CUDA needed
+    method._trainer = SimpleNamespace(precision="bf16-mixed", optimizers=[], **trainer)
+    with (
+        pytest.warns(UserWarning, match="bf16-mixed .autocast. the networks run eagerly"),
+        pytest.raises(ValueError, match=refused),
+    ):
+        method.on_train_start()
+    assert not any(is_graphed(net) for net in method.networks())
 
 
 def _loss_and_gradients(method, batch: dict) -> tuple[float, torch.Tensor]:

@@ -224,6 +224,11 @@ class ImageMethod(Method):
                 "model.init_args.cuda_graphs cannot accumulate gradients (the graphed backward "
                 "reuses its gradient buffers); set trainer.accumulate_grad_batches to 1"
             )
+        if self.trainer.world_size > 1:
+            raise ValueError(
+                "model.init_args.cuda_graphs is for a fit on one GPU (its graphs are not captured "
+                "for DDP's gradient hooks); drop it or train with trainer.devices 1"
+            )
         for net in self.networks():
             to_channels_last(net, self.trainer.optimizers)
             graph_training_passes(net)
