@@ -56,3 +56,23 @@ def test_cells_of_different_columns_are_refused(tmp_path, capsys):
     assert "different columns (block-insertion, hanging-disks)" in capsys.readouterr().err
     assert main([str(first)]) == 2
     assert "two or more cell files" in capsys.readouterr().err
+    validation = tmp_path / "validation.json"
+    validation.write_text(json.dumps(json.loads(first.read_text()) | {"split": "validation"}))
+    assert main([str(first), str(validation)]) == 2
+    assert "neither a run-cell cell nor a test record" in capsys.readouterr().err
+
+
+def test_a_test_record_of_evaluate_checkpoints_is_compared_with_a_cell(tmp_path, capsys):
+    cell = write_cell(tmp_path, "cell", {1: True, 3: False})
+    record = json.loads(write_cell(tmp_path, "record", {1: True, 3: True, 5: True}).read_text())
+    record |= {
+        "split": "test",
+        "checkpoint": "run/checkpoints/step004000.ckpt",
+        "global_step": 4000,
+    }
+    record.pop("protocol"), record.pop("machine")
+    tested = tmp_path / "step004000-test-normal.json"
+    tested.write_text(json.dumps(record))
+    assert main([str(cell), str(tested)]) == 0
+    rows = [line.strip("| ").split(" | ") for line in capsys.readouterr().out.splitlines()[2:]]
+    assert rows[1][2:9] == ["4000", "not recorded", "2", "1", "0", "1", "0"]

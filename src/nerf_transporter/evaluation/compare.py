@@ -1,5 +1,7 @@
 """`nerf-transporter compare-cells FIRST OTHER [...]`: cells of one column on their common test
-seeds, e.g. one method under two budgets, or fitted on two machines.
+seeds, e.g. one method under two budgets, or fitted on two machines. Besides run-cell's cells it
+reads the test records `nerf-transporter evaluate-checkpoints --split test` writes into a run's
+`evaluation/` (e.g. a checkpoint tested on more seeds than its cell).
 
 Two rates of 100 episodes each differ by chance by up to ~13 points; on the same seeds only the
 seeds one cell succeeded on and the other failed decide between them (exact McNemar test,
@@ -9,6 +11,7 @@ seeds one cell succeeded on and the other failed decide between them (exact McNe
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -18,13 +21,29 @@ from nerf_transporter.evaluation.report import (
     cell,
     column_name,
     fit_machine_names,
-    load_cells,
     markdown,
     test_outcomes,
 )
 
 HEADER = ["cell", "test", "checkpoint step", "fitted on", "seeds", "both", "first only"]
 HEADER += ["this only", "neither", "p"]
+
+
+def load_tested(paths: list[Path]) -> list[dict]:
+    """Cells of run-cell and test records of evaluate-checkpoints, each with its path."""
+    records = []
+    for path in paths:
+        try:
+            record = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as error:
+            raise ValueError(f"unreadable cell {path}: {error}") from error
+        tested = isinstance(record, dict) and record.get("split", "test") == "test"
+        if not tested or not {"task", "setting", "episode_results"} <= set(record):
+            raise ValueError(
+                f"{path} is neither a run-cell cell nor a test record of evaluate-checkpoints"
+            )
+        records.append(record | {"path": str(path)})
+    return records
 
 
 def comparison_table(cells: list[dict]) -> tuple[list[str], list[list[str]]]:
@@ -36,10 +55,12 @@ def comparison_table(cells: list[dict]) -> tuple[list[str], list[list[str]]]:
     first = test_outcomes(cells[0])
     rows = []
     for index, record in enumerate(cells):
+        checkpoint = record["checkpoint"]
+        step = checkpoint["step"] if isinstance(checkpoint, dict) else record["global_step"]
         described = [
             record["path"],
             cell(record),
-            str(record["checkpoint"]["step"]),
+            str(step),
             ", ".join(fit_machine_names(record)),
         ]
         if index == 0:
@@ -58,12 +79,18 @@ def main(argv: list[str] | None = None) -> int:
         "the first, only the other and neither succeeded on, and the exact McNemar p-value.",
         formatter_class=HelpFormatter,
     )
-    parser.add_argument("cells", nargs="+", type=Path, help="two or more run-cell cell files")
+    parser.add_argument(
+        "cells",
+        nargs="+",
+        type=Path,
+        help="two or more cell files (results/<column>/<row>.json) or test records "
+        "(<run>/evaluation/<checkpoint>-test-<setting>.json)",
+    )
     args = parser.parse_args(argv)
     try:
         if len(args.cells) < 2 or not all(path.is_file() for path in args.cells):
-            raise ValueError("give two or more cell files (results/<column>/<row>.json)")
-        header, rows = comparison_table(load_cells(args.cells))
+            raise ValueError("give two or more cell files or test records")
+        header, rows = comparison_table(load_tested(args.cells))
     except (OSError, ValueError) as error:
         print(f"nerf-transporter compare-cells: {error}", file=sys.stderr)
         return 2
