@@ -22,7 +22,7 @@ from nerf_transporter.evaluation.report import (
     column_name,
     fit_machine_names,
     markdown,
-    test_outcomes,
+    seed_outcomes,
 )
 
 HEADER = ["cell", "test", "checkpoint step", "fitted on", "seeds", "both", "first only"]
@@ -52,7 +52,7 @@ def comparison_table(cells: list[dict]) -> tuple[list[str], list[list[str]]]:
     if len(tasks) > 1:
         columns = ", ".join(sorted(column_name(*task) for task in tasks))
         raise ValueError(f"the cells belong to different columns ({columns}): compare one column")
-    first = test_outcomes(cells[0])
+    first = seed_outcomes(cells[0])
     rows = []
     for index, record in enumerate(cells):
         checkpoint = record["checkpoint"]
@@ -66,7 +66,7 @@ def comparison_table(cells: list[dict]) -> tuple[list[str], list[list[str]]]:
         if index == 0:
             rows.append(described + ["-"] * 6)
             continue
-        paired = paired_comparison(first, test_outcomes(record))
+        paired = paired_comparison(first, seed_outcomes(record))
         counts = [str(paired[key]) for key in ("seeds", "both", "first_only", "second_only")]
         rows.append(described + counts + [str(paired["neither"]), f"{paired['p_value']:.2g}"])
     return HEADER, rows

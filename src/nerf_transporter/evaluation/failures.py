@@ -52,7 +52,7 @@ from nerf_transporter.evaluation.report import (
     load_cells,
     markdown,
     row_key,
-    test_outcomes,
+    seed_outcomes,
 )
 from nerf_transporter.evaluation.rollout import NOT_ACHIEVED
 from nerf_transporter.geometry import Pose
@@ -315,7 +315,7 @@ def paired_table(records: list[dict[str, Any]]) -> tuple[list[str], list[list[st
     left out): seeds both, only mira, only the other, neither succeeded on, exact McNemar p."""
     header = ["column", "mira against", "seeds", "both", "mira only", "other only", "neither", "p"]
     outcomes = {
-        (r["task"], r["setting"], row_key(r["method"], r.get("imagery"))): test_outcomes(r)
+        (r["task"], r["setting"], row_key(r["method"], r.get("imagery"))): seed_outcomes(r)
         for r in records
     }
     rows = []

@@ -92,7 +92,7 @@ def load_cells(paths: list[Path]) -> list[dict]:
     return cells
 
 
-def test_outcomes(record: dict) -> dict[int, bool]:
+def seed_outcomes(record: dict) -> dict[int, bool]:
     """A cell's test episodes, seed -> success, erred episodes left out."""
     return {e["seed"]: e["success"] for e in record["episode_results"] if not e.get("error")}
 
