@@ -125,22 +125,16 @@ def profile_steps(
         synchronise(device)
     wall = time.perf_counter() - start
     kernels = [e for e in profiler.events() if e.device_type == DeviceType.CUDA]
-    on_gpu = device.type == "cuda"
-    busiest = sorted(
-        profiler.key_averages(),
-        key=lambda e: e.device_time_total if on_gpu else e.self_cpu_time_total,
-        reverse=True,
-    )
+
+    def busy_us(event) -> float:  # GPU time on a GPU, else the host's own time
+        return event.device_time_total if device.type == "cuda" else event.self_cpu_time_total
+
+    busiest = sorted(profiler.key_averages(), key=busy_us, reverse=True)
     return {
         "kernels": round(len(kernels) / steps),
         "gpu_busy_ms": round(sum(e.device_time for e in kernels) / steps / 1000, 2),
         "profiled_step_ms": round(wall / steps * 1000, 2),
-        "busiest_ops_ms": {  # GPU time on a GPU, else the host's own time
-            e.key[:60]: round(
-                (e.device_time_total if on_gpu else e.self_cpu_time_total) / steps / 1000, 2
-            )
-            for e in busiest[:12]
-        },
+        "busiest_ops_ms": {e.key[:60]: round(busy_us(e) / steps / 1000, 2) for e in busiest[:12]},
     }
 
 

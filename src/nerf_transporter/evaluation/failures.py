@@ -31,6 +31,7 @@ refused, since its seeds would build other scenes here.
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import sys
 from collections import Counter
@@ -49,7 +50,7 @@ from nerf_transporter.evaluation.report import (
     METHODS,
     column_name,
     in_table_order,
-    load_cells,
+    load_results,
     markdown,
     row_key,
     seed_outcomes,
@@ -333,6 +334,22 @@ def paired_table(records: list[dict[str, Any]]) -> tuple[list[str], list[list[st
             ]
         )
     return header, rows
+
+
+def load_cells(paths: list[Path]) -> list[dict[str, Any]]:
+    """The run-cell cells in the folders given (`<folder>/<column>/<row>.json`, as `results/`)
+    and the cell files given, each with its path under "path"."""
+    folders = [path for path in paths if not path.is_file()]
+    cells = [record for record in load_results(folders) if "protocol" in record]
+    for path in (path for path in paths if path.is_file()):
+        try:
+            record = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as error:
+            raise FailureAnalysisError(f"unreadable cell {path}: {error}") from error
+        if not isinstance(record, dict) or "protocol" not in record:
+            raise FailureAnalysisError(f"{path} is not a cell of run-cell (no protocol)")
+        cells.append(record | {"path": str(path)})
+    return cells
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -76,22 +76,6 @@ def load_results(roots: list[Path]) -> list[dict]:
     return records
 
 
-def load_cells(paths: list[Path]) -> list[dict]:
-    """The run-cell cells in the folders given (`<folder>/<column>/<row>.json`, as `results/`)
-    and the cell files given, each with its path under "path"."""
-    folders = [path for path in paths if not path.is_file()]
-    cells = [record for record in load_results(folders) if "protocol" in record]
-    for path in (path for path in paths if path.is_file()):
-        try:
-            record = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as error:
-            raise ValueError(f"unreadable cell {path}: {error}") from error
-        if not isinstance(record, dict) or "protocol" not in record:
-            raise ValueError(f"{path} is not a cell of run-cell (no protocol)")
-        cells.append(record | {"path": str(path)})
-    return cells
-
-
 def seed_outcomes(record: dict) -> dict[int, bool]:
     """A cell's test episodes, seed -> success, erred episodes left out."""
     return {e["seed"]: e["success"] for e in record["episode_results"] if not e.get("error")}
