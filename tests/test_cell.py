@@ -256,6 +256,16 @@ def test_a_test_with_erred_episodes_writes_no_cell_and_is_tested_again(fakes, mo
     assert Path("results/block-insertion/transporter_se2.json").is_file()
 
 
+def test_colour_augmentation_is_a_protocol_of_its_own_and_its_absence_changes_no_id():
+    protocol = cell_module.cell_protocol(CONFIG, "mira", "imagery")
+    data = CONFIG["data"] | {"init_args": CONFIG["data"]["init_args"] | {"colour_augment": False}}
+    assert cell_module.cell_protocol(CONFIG | {"data": data}, "mira", "imagery") == protocol
+    data["init_args"]["colour_augment"] = True
+    recoloured = cell_module.cell_protocol(CONFIG | {"data": data}, "mira", "imagery")
+    assert recoloured == protocol | {"colour_augment": True}
+    assert cell_module.protocol_id(recoloured) != cell_module.protocol_id(protocol)
+
+
 def test_train_time_counts_an_interrupted_segment_up_to_its_own_last_checkpoint(tmp_path):
     """Killed at t=1000 after a checkpoint at t=700, resumed at t=2000 and done in 500 s (its own
     checkpoints written at t=2400 and t=2500): 700 + 500 s, not until the resumed fit's last."""

@@ -383,6 +383,13 @@ def test_gpu_overlays_stack_on_task_and_method_configs(config):
     assert names.count("ClosedLoopTestCallback") == 1  # `lightning test` still plays the seeds
 
 
+def test_colour_augmentation_overlay_reaches_the_datamodule():
+    argv = ["--config", str(REPO / "configs/hanging_disks.yaml")]
+    assert not build_cli(argv, run=False).datamodule.colour_augment
+    argv += ["--config", str(REPO / "configs/data/colour_augment.yaml")]
+    assert build_cli(argv, run=False).datamodule.colour_augment
+
+
 def test_gpu_machine_overlays_stack_on_the_state_method():
     """h100.yaml, bf16.yaml and no_pybullet.yaml set nothing GT-State MLP lacks (width is apart)."""
     argv = [

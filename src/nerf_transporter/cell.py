@@ -199,7 +199,7 @@ def cell_protocol(config: dict[str, Any], method: str, input_kind: str) -> dict[
     architecture = {k: v for k, v in model.items() if k not in MODEL_ARGS_NOT_ARCHITECTURE}
     data = config["data"].get("init_args", {})
     validation = _callback(config, CALLBACK)
-    return {
+    protocol = {
         "task": data["task"],
         "setting": data.get("setting", "normal"),
         "method": method,
@@ -215,6 +215,10 @@ def cell_protocol(config: dict[str, Any], method: str, input_kind: str) -> dict[
         "test_episodes": data.get("test_episodes"),
         "model": architecture,
     }
+    if data.get("colour_augment"):
+        # only when on, so that the protocol ids of cells measured before the option stay the same
+        protocol["colour_augment"] = True
+    return protocol
 
 
 def protocol_id(protocol: dict[str, Any]) -> str:

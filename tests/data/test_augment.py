@@ -2,6 +2,7 @@ import math
 
 import cv2
 import numpy as np
+import pytest
 
 from nerf_transporter import geometry as g
 from nerf_transporter.data import augment as A
@@ -155,3 +156,34 @@ def test_sample_transform_keeps_labels_inside():
         assert (moved >= 2).all() and (moved <= np.array(SHAPE) - 3).all()
         angles.append(transform.angle)
     assert np.ptp(angles) > math.pi  # rotations are really drawn
+
+
+def test_colour_jitter_turns_hues_and_leaves_greys_and_the_identity_alone():
+    red, grey, white = (214, 39, 40), (128, 128, 128), (242, 242, 242)
+    image = np.array([[red, grey, white]], dtype=np.uint8)
+    unchanged = A.ColourJitter(0.0, 1.0, 1.0).apply(image)
+    assert np.abs(unchanged.astype(int) - image).max() <= 1
+    turned = A.ColourJitter(120.0, 1.0, 1.0).apply(image)
+    r, gr, b = turned[0, 0].astype(int)
+    assert gr > r and gr > b  # red turned a third of the circle is green
+    assert np.abs(turned[0, 1:].astype(int) - image[0, 1:]).max() <= 1  # greys have no hue
+    greyed = A.ColourJitter(0.0, 0.0, 1.0).apply(image)[0, 0]
+    assert greyed.max() - greyed.min() <= 1  # no saturation: a grey as bright as the red's peak
+    stack = np.stack([image, image[:, ::-1]])
+    assert np.array_equal(
+        A.ColourJitter(90.0, 0.5, 1.1).apply(stack)[1],
+        A.ColourJitter(90.0, 0.5, 1.1).apply(image[:, ::-1]),
+    )
+
+
+def test_colour_jitter_takes_uint8_rgb_only():
+    with pytest.raises(ValueError, match="uint8 RGB"):
+        A.ColourJitter(0.0, 1.0, 1.0).apply(np.zeros((2, 2, 3), dtype=np.float32))
+
+
+def test_sampled_colour_jitter_is_a_function_of_the_generator_and_within_its_ranges():
+    draws = [A.sample_colour_jitter(np.random.default_rng(seed)) for seed in range(200)]
+    assert draws[7] == A.sample_colour_jitter(np.random.default_rng(7))
+    hues = np.array([d.hue_shift for d in draws])
+    assert hues.min() >= 0 and hues.max() < 360 and np.ptp(hues) > 300
+    assert all(0.2 <= d.saturation_scale <= 1.2 and 0.8 <= d.value_scale <= 1.2 for d in draws)

@@ -99,6 +99,24 @@ def test_batches_are_deterministic_and_independent_of_workers(fake_world, tmp_pa
     assert len({tuple(p) for p in pixels.tolist()}) == 3  # one label per demo
 
 
+@pytest.mark.parametrize("input_kind", ["imagery", "heightmap"])
+def test_colour_augmentation_changes_colours_only(fake_world, tmp_path, input_kind):
+    plain = make(tmp_path, input_kind=input_kind)
+    plain.prepare_data()
+    plain.setup("fit")
+    recoloured = make(tmp_path, input_kind=input_kind, colour_augment=True)
+    recoloured.setup("fit")
+    changed = 0
+    for x, y in zip(batches(plain), batches(recoloured), strict=True):
+        for key in x:
+            if key not in ("image", "pick_image", "place_images"):
+                assert torch.equal(x[key], y[key])  # labels, views drawn: as without it
+                continue
+            assert torch.equal(x[key][..., 3:, :, :], y[key][..., 3:, :, :])  # heights as they were
+            changed += int(not torch.equal(x[key], y[key]))
+    assert changed > 0
+
+
 def test_missing_data_without_generation_prints_the_command(fake_world, tmp_path):
     module = make(tmp_path, generate_missing=False)
     module.prepare_data()  # does nothing

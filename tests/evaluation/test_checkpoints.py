@@ -53,6 +53,16 @@ def test_every_checkpoint_of_a_run_is_evaluated_and_the_best_named(
     # evaluating again adds files beside the first ones: nothing is replaced
     assert cli_main(["evaluate-checkpoints", *argv, "--eval-workers", "1"]) == 0
     assert (run / "evaluation" / "step2-validation-normal-2.json").is_file()
+    # one checkpoint named: only it is evaluated; one outside the run is refused by name
+    one = ["--checkpoint", str(run / "checkpoints" / "step4.ckpt"), "--eval-workers", "1"]
+    assert cli_main(["evaluate-checkpoints", *argv, *one]) == 0
+    assert (run / "evaluation" / "step4-validation-normal-3.json").is_file()
+    assert not (run / "evaluation" / "step2-validation-normal-3.json").exists()
+    capsys.readouterr()
+    stray = tmp_path / "stray.ckpt"
+    stray.write_bytes((run / "checkpoints" / "step4.ckpt").read_bytes())
+    assert cli_main(["evaluate-checkpoints", *argv, "--checkpoint", str(stray)]) == 1
+    assert f"{stray} is not a checkpoint file inside the run" in capsys.readouterr().err
 
 
 def test_a_run_without_checkpoints_is_an_error(tmp_path, capsys):

@@ -1,5 +1,6 @@
-"""SE(2) data augmentation: one random rotation + translation of the image plane, applied with OpenCV
-to every image of a sample and, identically, to the poses its labels come from.
+"""Data augmentation, applied with OpenCV to every image of a sample: one random rotation +
+translation of the image plane (SE(2)), applied identically to the poses its labels come from, and,
+optionally, one random colour change (hue, saturation, value), which leaves the labels alone.
 
 A transform rotates image content by `angle` about the image centre, counter-clockwise about the
 view's z axis (rows run along y, columns along x), then shifts it by `shift` (rows, cols). For a
@@ -127,4 +128,46 @@ def augment_view_action(
         place_view=view_action.place_view,
         pick=transform.apply_pose(view_action.pick, pixel_size),
         place=transform.apply_pose(view_action.place, pixel_size),
+    )
+
+
+@dataclass(frozen=True)
+class ColourJitter:
+    """One colour change of every image of a sample: hue turned, saturation and value scaled.
+
+    Grey pixels (no saturation) keep their hue-free colour under the turn, so a saturated object
+    changes colour against a nearly grey table while the scene's layout and heights stay put.
+    """
+
+    hue_shift: float  # degrees added to the hue (HSV, hue in [0, 360))
+    saturation_scale: float
+    value_scale: float
+
+    def apply(self, colour: np.ndarray) -> np.ndarray:
+        """uint8 RGB images [..., H, W, 3] -> the same images with their colour changed."""
+        if colour.dtype != np.uint8 or colour.shape[-1] != 3:
+            raise ValueError(
+                f"colour jitter takes uint8 RGB images, got {colour.dtype} {colour.shape}"
+            )
+        rgb = colour.reshape(-1, colour.shape[-2], 3).astype(np.float32) / 255.0
+        hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
+        hsv[..., 0] = np.mod(hsv[..., 0] + self.hue_shift, 360.0)
+        hsv[..., 1] = np.clip(hsv[..., 1] * self.saturation_scale, 0.0, 1.0)
+        hsv[..., 2] = np.clip(hsv[..., 2] * self.value_scale, 0.0, 1.0)
+        changed = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
+        return np.round(np.clip(changed, 0.0, 1.0) * 255.0).astype(np.uint8).reshape(colour.shape)
+
+
+def sample_colour_jitter(
+    rng: np.random.Generator,
+    *,
+    saturation_range: tuple[float, float] = (0.2, 1.2),
+    value_range: tuple[float, float] = (0.8, 1.2),
+) -> ColourJitter:
+    """Hue turned uniformly around the whole circle, saturation and value scaled uniformly in their
+    ranges: every hue, and nearly grey or white versions of the colours, occur in training."""
+    return ColourJitter(
+        float(rng.uniform(0.0, 360.0)),
+        float(rng.uniform(*saturation_range)),
+        float(rng.uniform(*value_range)),
     )

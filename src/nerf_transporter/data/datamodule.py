@@ -9,7 +9,7 @@ The model's `input_kind` picks the batch layout:
   the place z, roll and pitch;
 - `state` (gt_state_mlp): the state vector and the oracle pick and place poses.
 
-Every random choice of a sample (SE(2) augmentation, negative views) comes from a seed the sampler
+Every random choice of a sample (SE(2) and colour augmentation, negative views) comes from a seed the sampler
 draws from (seed, epoch, position), so batches do not depend on the number of worker processes,
 and a fit resumed from a checkpoint saved mid-epoch trains on the rest of that epoch's samples, as
 the uninterrupted fit would have.
@@ -30,7 +30,12 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 
 from nerf_transporter import geometry as g
 from nerf_transporter.data import episode as ep
-from nerf_transporter.data.augment import augment_view_action, identity_transform, sample_transform
+from nerf_transporter.data.augment import (
+    augment_view_action,
+    identity_transform,
+    sample_colour_jitter,
+    sample_transform,
+)
 from nerf_transporter.data.generate import GenerationConfig, action_from_meta, generate_dataset
 from nerf_transporter.data.heightmap import heightmap_from_rgbd
 from nerf_transporter.data.labels import (
@@ -162,6 +167,7 @@ class DemoDataset(Dataset):
         pixel_size: float = g.PIXEL_SIZE,
         n_negative_views: int = 0,
         augment: bool = False,
+        colour_augment: bool = False,
         n_rotations: int = g.N_ROTATIONS,
         views: np.ndarray | None = None,
         negative_view_scale: float | None = None,
@@ -172,7 +178,7 @@ class DemoDataset(Dataset):
             raise ValueError("imagery samples need the view grid (views=[V, 2] roll, pitch)")
         self.demos, self.input_kind = demos, input_kind
         self.pixel_size, self.n_negative_views = pixel_size, n_negative_views
-        self.augment, self.n_rotations = augment, n_rotations
+        self.augment, self.colour_augment, self.n_rotations = augment, colour_augment, n_rotations
         self.views, self.negative_view_scale = views, negative_view_scale
         self.shape = g.image_shape(pixel_size)
 
@@ -206,7 +212,8 @@ class DemoDataset(Dataset):
         }
         if self.input_kind == "heightmap":
             sample["image"] = network_input(
-                transform.apply_image(demo.colour), transform.apply_image(demo.height)
+                self._recolour(rng, transform.apply_image(demo.colour)),
+                transform.apply_image(demo.height),
             )
             sample["place_z"] = torch.tensor(labels.place_z, dtype=torch.float32)
             sample["place_roll"] = torch.tensor(labels.place_roll, dtype=torch.float32)
@@ -216,12 +223,17 @@ class DemoDataset(Dataset):
             rng, self.views, labels.place_view, self.n_negative_views, self.negative_view_scale
         )
         views = np.concatenate([[demo.pick_view, labels.place_view], negatives]).astype(int)
-        colour = transform.apply_images(demo.colour[views])
+        colour = self._recolour(rng, transform.apply_images(demo.colour[views]))
         height = transform.apply_images(demo.height[views])
         images = network_input(colour, height)
         sample["pick_image"] = images[0]
         sample["place_images"] = images[1:]
         return sample
+
+    def _recolour(self, rng: np.random.Generator, colour: np.ndarray) -> np.ndarray:
+        """The sample's images with one random colour change (drawn last from the sample's
+        generator, so the other draws are those of a run without it), or as they are."""
+        return sample_colour_jitter(rng).apply(colour) if self.colour_augment else colour
 
 
 class RavensDataModule(pl.LightningDataModule):
@@ -235,7 +247,10 @@ class RavensDataModule(pl.LightningDataModule):
     first `test_episodes` test seeds, run in `test_setting` (default: `setting`) by `test_workers`
     worker processes (default: one per core available to the process; 1: in the process itself).
     `pin_memory` puts batches in page-locked memory for a faster copy to a GPU (with `num_workers`
-    loading them).
+    loading them). `augment` moves each training sample's images by a random SE(2) transform;
+    `colour_augment` also changes their colour at random (hue turned around the whole circle,
+    saturation and value scaled; `augment.sample_colour_jitter`), for image methods tested on
+    object colours no training seed has (hanging-disks).
 
     Methods that do not use imagery (heightmap, state) read any existing dataset of the task with
     the configured imagery, else one generated with `imagery="oracle"`: their inputs (RGB-D, state)
@@ -255,6 +270,7 @@ class RavensDataModule(pl.LightningDataModule):
         n_negative_views: int = 4,
         negative_view_scale: float | None = None,
         augment: bool = True,
+        colour_augment: bool = False,
         generate_missing: bool = True,
         seed: int = 0,
         input_kind: str | None = None,
@@ -290,6 +306,7 @@ class RavensDataModule(pl.LightningDataModule):
         self.data_dir, self.batch_size, self.num_workers = Path(data_dir), batch_size, num_workers
         self.imagery, self.pixel_size = imagery, pixel_size
         self.n_negative_views, self.augment = n_negative_views, augment
+        self.colour_augment = colour_augment
         self.negative_view_scale = negative_view_scale
         self.generate_missing, self.seed, self.input_kind = generate_missing, seed, input_kind
         self.n_val_demos, self.samples_per_epoch, self.n_rotations = (
@@ -398,7 +415,13 @@ class RavensDataModule(pl.LightningDataModule):
         }
         if stage in (None, "fit") and self.train_dataset is None:
             demos = self.load_split("train", self.n_demos, input_kind)
-            self.train_dataset = DemoDataset(demos, input_kind, augment=self.augment, **options)
+            self.train_dataset = DemoDataset(
+                demos,
+                input_kind,
+                augment=self.augment,
+                colour_augment=self.colour_augment,
+                **options,
+            )
         if stage in (None, "fit", "validate") and self.n_val_demos > 0 and self.val_dataset is None:
             demos = self.load_split("validation", self.n_val_demos, input_kind)
             self.val_dataset = DemoDataset(demos, input_kind, augment=False, **options)

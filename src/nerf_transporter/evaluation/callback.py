@@ -49,7 +49,7 @@ from nerf_transporter.splits import split_seed
 
 # settings shown in TensorBoard's HParams tab, where the method / DataModule has them
 MODEL_HPARAMS = ("lr", "width", "pixel_size", "n_rotations", "crop_size")
-DATA_HPARAMS = ("n_demos", "batch_size", "n_negative_views", "augment")
+DATA_HPARAMS = ("n_demos", "batch_size", "n_negative_views", "augment", "colour_augment")
 # frame colours chosen apart from every object colour of the tasks (sim/assets.py COLORS)
 OUTCOME_COLOURS = {
     "success": np.array([128, 255, 0], dtype=np.uint8),  # lime

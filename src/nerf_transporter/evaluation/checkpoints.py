@@ -50,6 +50,20 @@ def checkpoint_steps(run_dir: Path) -> list[tuple[int, Path]]:
     return sorted(by_step.items())
 
 
+def chosen_checkpoints(run_dir: Path, paths: list[Path]) -> list[tuple[int, Path]]:
+    """(global step, path) of the named checkpoints of a run, by step; a file outside the run or
+    unreadable is an error naming it (its evaluation would be filed with another run)."""
+    chosen = set()
+    for path in paths:
+        if not path.is_file() or not path.resolve().is_relative_to(run_dir.resolve()):
+            raise FileNotFoundError(f"{path} is not a checkpoint file inside the run {run_dir}")
+        try:
+            chosen.add((checkpoint_step(path), path))
+        except Exception as error:  # truncated, not a checkpoint, or refused by weights_only
+            raise ValueError(f"{path} is not a readable checkpoint: {error}") from error
+    return sorted(chosen)
+
+
 def config_callbacks(config: dict[str, Any], name: str) -> list[dict[str, Any]]:
     """The `trainer.callbacks` entries of a resolved run config whose class is named `name`."""
     return [
@@ -155,10 +169,7 @@ def evaluate_checkpoints(
     """Evaluate every checkpoint of a run (or the `only` ones) on the first `episodes` seeds of
     `split`, in `workers` worker processes (default: one per available core; 1: in this process);
     with `video_dir`, every episode is recorded under `<video_dir>/<checkpoint>/`."""
-    checkpoints = checkpoint_steps(run_dir)
-    if only is not None:
-        wanted = {path.resolve() for path in only}
-        checkpoints = [(step, path) for step, path in checkpoints if path.resolve() in wanted]
+    checkpoints = checkpoint_steps(run_dir) if only is None else chosen_checkpoints(run_dir, only)
     if not checkpoints:
         raise FileNotFoundError(f"no readable .ckpt files under {run_dir}")
     device = device or torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -231,6 +242,12 @@ def main(argv: list[str] | None = None) -> int:
         "--split", choices=("validation", "test"), default="validation", help="seed range"
     )
     parser.add_argument("--episodes", type=int, default=10, help="episodes per checkpoint")
+    parser.add_argument(
+        "--checkpoint",
+        type=Path,
+        action="append",
+        help="evaluate only this checkpoint of the run (repeatable; default: every one)",
+    )
     parser.add_argument("--imagery", choices=IMAGERY_KINDS, help="default: as in training")
     parser.add_argument("--setting", help="default: the training setting")
     parser.add_argument("--cache-dir", default=DEFAULT_CACHE_DIR, help="imagery cache")
@@ -264,6 +281,7 @@ def main(argv: list[str] | None = None) -> int:
             device=torch.device(args.device) if args.device else None,
             workers=args.eval_workers,
             video_dir=args.video,
+            only=args.checkpoint,
         )
     except (FileNotFoundError, ValueError) as error:
         print(f"nerf-transporter evaluate-checkpoints: {error}", file=sys.stderr)
