@@ -1,0 +1,86 @@
+"""Success of hanging-disks cells by the colour of each test scene's disk.
+
+hanging-disks draws the disk's and the stand's colours from one palette for training and
+validation seeds and from a disjoint one for test seeds (`sim/tasks/hanging_disks.py`). This
+replays each test seed's reset (no robot motion) to read the colours it drew, and breaks every
+cell's recorded test outcomes down by the disk's colour, to show which unseen colours a policy
+misses.
+
+    OMP_NUM_THREADS=1 PYTHONPATH=src python benchmarks/hanging_disk_colours.py \
+        results/hanging-disks/*.json results/sweep/colour-augment/hanging-disks/*.json [--json]
+
+docs/failures.md reports and reads these figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from nerf_transporter.evaluation.failures import load_cells
+from nerf_transporter.evaluation.report import seed_outcomes
+from nerf_transporter.sim import make_env
+from nerf_transporter.sim.tasks.hanging_disks import TEST_COLORS
+
+TASK = "hanging-disks"
+
+
+def scene_colours(seeds: list[int]) -> dict[int, dict[str, str]]:
+    """seed -> {"disk": colour name, "stand": colour name} as the task draws them at reset."""
+    env = make_env(TASK)
+    try:
+        colours = {}
+        for seed in seeds:
+            env.reset(seed=seed)
+            colours[seed] = dict(env.task.colors)
+        return colours
+    finally:
+        env.close()
+
+
+def cell_label(cell: dict) -> str:
+    """The cell's row, with `+colour` where it was trained with colour augmentation."""
+    row = f"{cell['method']}-oracle" if cell.get("imagery") == "oracle" else cell["method"]
+    return f"{row} +colour" if cell["protocol"].get("colour_augment") else row
+
+
+def by_disk_colour(cell: dict, colours: dict[int, dict[str, str]]) -> dict[str, list[int]]:
+    """disk colour -> [successes, episodes] over the cell's test episodes."""
+    counts = {colour: [0, 0] for colour in TEST_COLORS}
+    for seed, success in seed_outcomes(cell).items():
+        tally = counts[colours[seed]["disk"]]
+        tally[0] += int(success)
+        tally[1] += 1
+    return counts
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("cells", type=Path, nargs="+", help="hanging-disks cell files or folders")
+    parser.add_argument("--json", action="store_true", help="end with one JSON line")
+    args = parser.parse_args(argv)
+    cells = [cell for cell in load_cells(args.cells) if cell["task"] == TASK]
+    if not cells:
+        print(f"no {TASK} cells among {', '.join(map(str, args.cells))}", file=sys.stderr)
+        return 1
+    seeds = sorted({seed for cell in cells for seed in seed_outcomes(cell)})
+    colours = scene_colours(seeds)
+    scenes = {c: sum(colours[s]["disk"] == c for s in seeds) for c in TEST_COLORS}
+    header = " | ".join(f"{c} disk ({scenes[c]} scenes)" for c in TEST_COLORS)
+    print(f"| cell | all | {header} |\n| --- | --- |{' --- |' * len(TEST_COLORS)}")
+    summary = []
+    for cell in cells:
+        counts = by_disk_colour(cell, colours)
+        wins = sum(s for s, _ in counts.values())
+        parts = " | ".join(f"{s}/{n}" for s, n in counts.values())
+        print(f"| {cell_label(cell)} | {wins}/{len(seed_outcomes(cell))} | {parts} |")
+        summary.append({"cell": str(cell["path"]), "label": cell_label(cell), "by_disk": counts})
+    if args.json:
+        print(json.dumps({"colours": {str(s): colours[s] for s in seeds}, "cells": summary}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,38 @@
+"""benchmarks/hanging_disk_colours.py: test scenes' disk colours and the per-colour breakdown."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+from nerf_transporter.sim.tasks.hanging_disks import TEST_COLORS, TRAIN_COLORS
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "hanging_disk_colours.py"
+
+
+def load_script():
+    spec = importlib.util.spec_from_file_location("hanging_disk_colours", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_test_scenes_draw_unseen_colours_and_each_outcome_is_counted_once(tmp_path, capsys):
+    script = load_script()
+    seeds = [1, 3, 5, 7, 9, 11]
+    colours = script.scene_colours(seeds)
+    assert colours == script.scene_colours(seeds)  # a function of the seed
+    assert all(c["disk"] in TEST_COLORS and c["stand"] in TEST_COLORS for c in colours.values())
+    assert not {c["disk"] for c in colours.values()} & set(TRAIN_COLORS)
+    results = [{"seed": s, "success": s in (1, 7), "error": None} for s in seeds]
+    results.append({"seed": 13, "success": False, "error": "RuntimeError: cache"})  # left out
+    cell = {"task": "hanging-disks", "method": "transporter_se2", "imagery": None}
+    cell |= {"protocol": {"colour_augment": True}, "episode_results": results}
+    counts = script.by_disk_colour(cell, colours)
+    assert sum(n for _, n in counts.values()) == 6 and sum(s for s, _ in counts.values()) == 2
+    assert counts[colours[1]["disk"]][0] >= 1
+    path = tmp_path / "transporter_se2.json"
+    path.write_text(json.dumps(cell))
+    assert script.main([str(path), "--json"]) == 0
+    out = capsys.readouterr().out
+    assert "| transporter_se2 +colour | 2/6 |" in out
+    assert json.loads(out.splitlines()[-1])["cells"][0]["by_disk"] == counts
