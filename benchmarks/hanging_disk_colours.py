@@ -41,9 +41,13 @@ def scene_colours(seeds: list[int]) -> dict[int, dict[str, str]]:
 
 
 def cell_label(cell: dict) -> str:
-    """The cell's row, with `+colour` where it was trained with colour augmentation."""
+    """The cell's row, with `+colour` where it was trained with colour augmentation and its
+    training steps and learning rate where it was (a sweep's cells differ in those)."""
     row = f"{cell['method']}-oracle" if cell.get("imagery") == "oracle" else cell["method"]
-    return f"{row} +colour" if cell["protocol"].get("colour_augment") else row
+    protocol = cell["protocol"]
+    if not protocol.get("colour_augment"):
+        return row
+    return f"{row} +colour ({protocol['steps']} steps, lr {protocol['lr']:g})"
 
 
 def by_disk_colour(cell: dict, colours: dict[int, dict[str, str]]) -> dict[str, list[int]]:

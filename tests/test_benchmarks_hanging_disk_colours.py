@@ -26,7 +26,10 @@ def test_test_scenes_draw_unseen_colours_and_each_outcome_is_counted_once(tmp_pa
     results = [{"seed": s, "success": s in (1, 7), "error": None} for s in seeds]
     results.append({"seed": 13, "success": False, "error": "RuntimeError: cache"})  # left out
     cell = {"task": "hanging-disks", "method": "transporter_se2", "imagery": None}
-    cell |= {"protocol": {"colour_augment": True}, "episode_results": results}
+    cell |= {
+        "protocol": {"colour_augment": True, "steps": 6000, "lr": 3e-4},
+        "episode_results": results,
+    }
     counts = script.by_disk_colour(cell, colours)
     assert sum(n for _, n in counts.values()) == 6 and sum(s for s, _ in counts.values()) == 2
     assert counts[colours[1]["disk"]][0] >= 1
@@ -34,5 +37,5 @@ def test_test_scenes_draw_unseen_colours_and_each_outcome_is_counted_once(tmp_pa
     path.write_text(json.dumps(cell))
     assert script.main([str(path), "--json"]) == 0
     out = capsys.readouterr().out
-    assert "| transporter_se2 +colour | 2/6 |" in out
+    assert "| transporter_se2 +colour (6000 steps, lr 0.0003) | 2/6 |" in out
     assert json.loads(out.splitlines()[-1])["cells"][0]["by_disk"] == counts
