@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from nerf_transporter.cli import main as cli_main
+from nerf_transporter.evaluation.checkpoints import chosen_checkpoints
 from tests.helpers.state_run import trained_state_mlp
 
 
@@ -58,6 +59,9 @@ def test_every_checkpoint_of_a_run_is_evaluated_and_the_best_named(
     assert cli_main(["evaluate-checkpoints", *argv, *one]) == 0
     assert (run / "evaluation" / "step4-validation-normal-3.json").is_file()
     assert not (run / "evaluation" / "step2-validation-normal-3.json").exists()
+    # a bare file name names the run's checkpoint of that name
+    named = chosen_checkpoints(run, [Path("step4.ckpt")])
+    assert named == [(4, run / "checkpoints" / "step4.ckpt")]
     capsys.readouterr()
     stray = tmp_path / "stray.ckpt"
     stray.write_bytes((run / "checkpoints" / "step4.ckpt").read_bytes())

@@ -50,11 +50,20 @@ def checkpoint_steps(run_dir: Path) -> list[tuple[int, Path]]:
     return sorted(by_step.items())
 
 
+def in_run(run_dir: Path, path: Path) -> Path:
+    """`path`, or, where it is a bare file name that is not a file here, the run's one checkpoint
+    of that name (`--checkpoint step006000.ckpt`)."""
+    if path.is_file() or path.parent != Path("."):
+        return path
+    matches = sorted(run_dir.rglob(path.name))
+    return matches[0] if len(matches) == 1 else path
+
+
 def chosen_checkpoints(run_dir: Path, paths: list[Path]) -> list[tuple[int, Path]]:
     """(global step, path) of the named checkpoints of a run, by step; a file outside the run or
     unreadable is an error naming it (its evaluation would be filed with another run)."""
     chosen = set()
-    for path in paths:
+    for path in (in_run(run_dir, path) for path in paths):
         if not path.is_file() or not path.resolve().is_relative_to(run_dir.resolve()):
             raise FileNotFoundError(f"{path} is not a checkpoint file inside the run {run_dir}")
         try:
@@ -246,7 +255,8 @@ def main(argv: list[str] | None = None) -> int:
         "--checkpoint",
         type=Path,
         action="append",
-        help="evaluate only this checkpoint of the run (repeatable; default: every one)",
+        help="evaluate only this checkpoint of the run, a path or its file name "
+        "(repeatable; default: every one)",
     )
     parser.add_argument("--imagery", choices=IMAGERY_KINDS, help="default: as in training")
     parser.add_argument("--setting", help="default: the training setting")
