@@ -1,23 +1,13 @@
 """benchmarks/hanging_disk_colours.py: test scenes' disk colours and the per-colour breakdown."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 from nerf_transporter.sim.tasks.hanging_disks import TEST_COLORS, TRAIN_COLORS
-
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "hanging_disk_colours.py"
-
-
-def load_script():
-    spec = importlib.util.spec_from_file_location("hanging_disk_colours", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tests.helpers.benchmarks import load_benchmark
 
 
 def test_test_scenes_draw_unseen_colours_and_each_outcome_is_counted_once(tmp_path, capsys):
-    script = load_script()
+    script = load_benchmark("hanging_disk_colours")
     seeds = [1, 3, 5, 7, 9, 11]
     colours = script.scene_colours(seeds)
     assert colours == script.scene_colours(seeds)  # a function of the seed
