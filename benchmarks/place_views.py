@@ -43,11 +43,10 @@ def in_workspace(position: list[float]) -> bool:
 def place_view_summary(record: dict, limit: float) -> dict:
     """Counts of a record's episodes (erred ones left out) by place view and place position."""
     episodes = [e for e in record["episode_results"] if e.get("error") is None]
-    views = [place_view(e["action"]) for e in episodes]
-    beyond = [max(abs(r), abs(p)) > limit + ANGLE_SLACK for r, p in views]
+    angles = [max(map(abs, place_view(e["action"]))) for e in episodes]
+    beyond = [angle > limit + ANGLE_SLACK for angle in angles]
     outside = [not in_workspace(e["action"]["place"][:3]) for e in episodes]
     wins = [bool(e["success"]) for e in episodes]
-    tilts = np.degrees([max(abs(r), abs(p)) for r, p in views]) if views else np.zeros(1)
     return {
         "setting": record["setting"],
         "episodes": len(episodes),
@@ -56,7 +55,7 @@ def place_view_summary(record: dict, limit: float) -> dict:
         "beyond_grid_successes": sum(b and w for b, w in zip(beyond, wins, strict=True)),
         "outside_workspace": sum(outside),
         "outside_workspace_successes": sum(o and w for o, w in zip(outside, wins, strict=True)),
-        "median_view_angle_deg": float(np.median(tilts)),
+        "median_view_angle_deg": float(np.degrees(np.median(angles))) if angles else 0.0,
     }
 
 

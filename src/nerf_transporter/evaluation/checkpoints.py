@@ -55,7 +55,7 @@ def in_run(run_dir: Path, path: Path) -> Path:
     of that name (`--checkpoint step006000.ckpt`)."""
     if path.is_file() or path.parent != Path("."):
         return path
-    matches = sorted(run_dir.rglob(path.name))
+    matches = list(run_dir.rglob(path.name))
     return matches[0] if len(matches) == 1 else path
 
 
