@@ -34,18 +34,12 @@ def place_view(action: dict) -> tuple[float, float]:
     return float(roll), float(pitch)
 
 
-def in_workspace(position: list[float]) -> bool:
-    """Whether a place position's x and y lie within the workspace bounds."""
-    (x_low, x_high), (y_low, y_high) = g.BOUNDS[0], g.BOUNDS[1]
-    return bool(x_low <= position[0] <= x_high and y_low <= position[1] <= y_high)
-
-
 def place_view_summary(record: dict, limit: float) -> dict:
     """Counts of a record's episodes (erred ones left out) by place view and place position."""
     episodes = [e for e in record["episode_results"] if e.get("error") is None]
     angles = [max(map(abs, place_view(e["action"]))) for e in episodes]
     beyond = [angle > limit + ANGLE_SLACK for angle in angles]
-    outside = [not in_workspace(e["action"]["place"][:3]) for e in episodes]
+    outside = [not g.over_workspace(e["action"]["place"][:3]) for e in episodes]
     wins = [bool(e["success"]) for e in episodes]
     return {
         "setting": record["setting"],

@@ -65,3 +65,14 @@ def synthetic_observation(input_kind: str, seed: int = 0) -> dict:
             "views": views,
         }
     }
+
+
+def table_height_in_view(view_rotation: np.ndarray, pixel_size: float = PIXEL_SIZE) -> np.ndarray:
+    """The height image of the bare table (world z = 0) as a view with this rotation sees it."""
+    pixels = np.stack(np.indices(g.image_shape(pixel_size)), axis=-1)
+    offset = g.pixel_to_world(pixels, 0.0, pixel_size) - g.WORKSPACE_CENTER
+    normal = view_rotation.T @ np.array([0.0, 0.0, 1.0])  # the table's normal in the view frame
+    return (
+        g.WORKSPACE_CENTER[2]
+        - (offset[..., 0] * normal[0] + offset[..., 1] * normal[1]) / normal[2]
+    )

@@ -1,3 +1,5 @@
+import math
+
 import lightning.pytorch as pl
 import numpy as np
 import pytest
@@ -6,12 +8,14 @@ import torch
 from nerf_transporter import geometry as g
 from nerf_transporter.data.seeds import seed_loader
 from nerf_transporter.methods import METHODS, Method
+from nerf_transporter.methods import mira as mira_module
 from tests.helpers.synthetic import (
     PIXEL_SIZE,
     SIZE,
     STATE_DIM,
     synthetic_batch,
     synthetic_observation,
+    table_height_in_view,
 )
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -83,6 +87,33 @@ def test_mira_act_places_in_the_best_view():
         rotation_v @ g.rot_z(g.bin_to_angle(rotation, SIZE["n_rotations"])),
         atol=1e-6,
     )
+
+
+def test_mira_places_only_over_the_workspace(monkeypatch):
+    """A steep view's best-scoring pixel that sees the table beyond the workspace is passed over
+    for the best one over it."""
+    views = np.array([[0.0, 0.0], [math.pi / 4, 0.0]])
+    rotations = g.view_rotations(views)
+    shape = g.image_shape(PIXEL_SIZE)
+    height = np.stack([np.zeros(shape), table_height_in_view(rotations[1])]).astype(np.float32)
+    beyond, over = (0, 4), (shape[0] // 2, 4)  # the steep view's edge row, its middle row
+    assert not g.over_workspace(
+        g.view_pixel_to_world(beyond, height[1][beyond], rotations[1], PIXEL_SIZE)
+    )
+
+    def scores(query, kernel_f, crop_size):
+        logits = torch.zeros(1, len(views), SIZE["n_rotations"], *shape)
+        logits[0, 1, 0][beyond] = 10.0
+        logits[0, 1, 0][over] = 5.0
+        return logits
+
+    monkeypatch.setattr(mira_module, "correlate_spectrum", scores)
+    method = make_method("mira", view_chunk=len(views))
+    rng = np.random.default_rng(0)
+    colour = rng.integers(0, 256, (len(views), *shape, 3), dtype=np.uint8)
+    action = method.act({"imagery": {"colour": colour, "height": height, "views": views}})
+    expected = g.view_pixel_to_world(over, height[1][over], rotations[1], PIXEL_SIZE)
+    assert np.allclose(action["place"][0], expected, atol=1e-6)
 
 
 def test_act_rejects_wrong_image_size():

@@ -28,6 +28,8 @@ class Mira(AttentionTransportMethod):
     Training: the place label lies in view 0 of `place_images` (the positive view); the other K views
     are negatives of the same scene, and one softmax runs over views x rotations x pixels.
     `view_chunk` views are correlated at a time in `act` (bounds memory over a 49- or 121-view grid).
+    `act` places only at pixels over the workspace (`geometry.view_pixels_over_workspace`): a steep
+    view's edge pixels see the table beyond it, where no target lies and the robot does not reach.
     """
 
     name = "mira"
@@ -78,11 +80,21 @@ class Mira(AttentionTransportMethod):
         pick = self.predict_pick(pick_image)
         kernels = self.transport.kernels(pick_image, torch.tensor([pick], device=self.device))
         kernel_f = kernel_spectrum(kernels, height.shape[1:])
+        over_workspace = torch.from_numpy(
+            np.stack(
+                [
+                    g.view_pixels_over_workspace(view_height, rotation, self.pixel_size)
+                    for view_height, rotation in zip(height, g.view_rotations(views), strict=True)
+                ]
+            )
+        ).to(self.device)
         best_value, best = -float("inf"), (0, 0, 0, 0)
         for start in range(0, len(views), self.view_chunk):
             chunk = images[None, start : start + self.view_chunk].to(self.device)
             query = self.transport.query_features(chunk)
             logits = correlate_spectrum(query, kernel_f, self.crop_size)[0]
+            reachable = over_workspace[start : start + self.view_chunk, None]
+            logits = logits.masked_fill(~reachable, -float("inf"))
             value = float(logits.max())
             if value > best_value:
                 view, rotation, row, col = np.unravel_index(int(logits.argmax()), logits.shape)
