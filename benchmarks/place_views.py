@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from nerf_transporter import geometry as g
+from nerf_transporter.methods.mira import over_workspace
 
 ANGLE_SLACK = 1e-3  # rad: a view on the grid's edge read back from a stored quaternion
 
@@ -39,7 +40,7 @@ def place_view_summary(record: dict, limit: float) -> dict:
     episodes = [e for e in record["episode_results"] if e.get("error") is None]
     angles = [max(map(abs, place_view(e["action"]))) for e in episodes]
     beyond = [angle > limit + ANGLE_SLACK for angle in angles]
-    outside = [not g.over_workspace(e["action"]["place"][:3]) for e in episodes]
+    outside = [not over_workspace(e["action"]["place"][:3]) for e in episodes]
     wins = [bool(e["success"]) for e in episodes]
     return {
         "setting": record["setting"],

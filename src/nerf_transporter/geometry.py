@@ -180,31 +180,10 @@ def world_to_view_pixel(
 
 
 def view_pixel_to_world(
-    pixels: np.ndarray,
-    height: np.ndarray | float,
-    view_rotation: np.ndarray,
-    pixel_size: float = PIXEL_SIZE,
+    pixels: np.ndarray, height: np.ndarray | float, view_rotation: np.ndarray
 ) -> np.ndarray:
     """Pixel (row, col) and height in view v -> world xyz."""
-    return view_to_world(pixel_to_world(pixels, height, pixel_size), view_rotation)
-
-
-def over_workspace(points: np.ndarray) -> np.ndarray:
-    """Whether world points (..., 3) lie within the workspace bounds in x and y (z free)."""
-    points = np.asarray(points, dtype=float)
-    (x_low, x_high), (y_low, y_high) = BOUNDS[0], BOUNDS[1]
-    x, y = points[..., 0], points[..., 1]
-    return (x_low <= x) & (x <= x_high) & (y_low <= y) & (y <= y_high)
-
-
-def view_pixels_over_workspace(
-    height: np.ndarray, view_rotation: np.ndarray, pixel_size: float = PIXEL_SIZE
-) -> np.ndarray:
-    """(H, W) mask of a view's pixels whose surface point (at the view's height image) lies over the
-    workspace. A tilted view's edge pixels see the table beyond it (a view rolled by a sees the
-    table point y = y' / cos(a) at its pixel y')."""
-    pixels = np.stack(np.indices(np.shape(height)), axis=-1)
-    return over_workspace(view_pixel_to_world(pixels, height, view_rotation, pixel_size))
+    return view_to_world(pixel_to_world(pixels, height), view_rotation)
 
 
 def pixel_inside_image(pixel: Sequence[float], shape: tuple[int, int] = IMAGE_SHAPE) -> bool:

@@ -9,6 +9,7 @@ from nerf_transporter import geometry as g
 from nerf_transporter.data.seeds import seed_loader
 from nerf_transporter.methods import METHODS, Method
 from nerf_transporter.methods import mira as mira_module
+from nerf_transporter.methods.mira import over_workspace, pixels_over_workspace
 from tests.helpers.synthetic import (
     PIXEL_SIZE,
     SIZE,
@@ -89,6 +90,22 @@ def test_mira_act_places_in_the_best_view():
     )
 
 
+def test_a_steep_view_sees_the_table_beyond_the_workspace_at_its_edges():
+    everywhere = pixels_over_workspace(np.full(g.image_shape(), 0.1), np.eye(3))
+    assert everywhere.all()
+    roll = (
+        math.pi / 4
+    )  # a roll turns y only: a row is over the workspace iff |y'| / cos(roll) <= 0.5
+    rotation = g.tilt_matrix(roll, 0.0)
+    over = pixels_over_workspace(table_height_in_view(rotation, g.PIXEL_SIZE), rotation)
+    rows_over = over.all(axis=1)
+    assert np.array_equal(rows_over, over.any(axis=1))
+    inside = np.flatnonzero(rows_over)
+    assert np.array_equal(inside, np.arange(inside[0], inside[-1] + 1))  # one band in the middle
+    assert abs(len(inside) - over.shape[0] * math.cos(roll)) <= 2
+    assert abs((inside[0] + inside[-1]) / 2 - (over.shape[0] - 1) / 2) <= 1
+
+
 def test_mira_places_only_over_the_workspace(monkeypatch):
     """A steep view's best-scoring pixel that sees the table beyond the workspace is passed over
     for the best one over it."""
@@ -97,8 +114,8 @@ def test_mira_places_only_over_the_workspace(monkeypatch):
     shape = g.image_shape(PIXEL_SIZE)
     height = np.stack([np.zeros(shape), table_height_in_view(rotations[1])]).astype(np.float32)
     beyond, over = (0, 4), (shape[0] // 2, 4)  # the steep view's edge row, its middle row
-    assert not g.over_workspace(
-        g.view_pixel_to_world(beyond, height[1][beyond], rotations[1], PIXEL_SIZE)
+    assert not over_workspace(
+        g.view_to_world(g.pixel_to_world(beyond, height[1][beyond], PIXEL_SIZE), rotations[1])
     )
 
     def scores(query, kernel_f, crop_size):
@@ -112,7 +129,7 @@ def test_mira_places_only_over_the_workspace(monkeypatch):
     rng = np.random.default_rng(0)
     colour = rng.integers(0, 256, (len(views), *shape, 3), dtype=np.uint8)
     action = method.act({"imagery": {"colour": colour, "height": height, "views": views}})
-    expected = g.view_pixel_to_world(over, height[1][over], rotations[1], PIXEL_SIZE)
+    expected = g.view_to_world(g.pixel_to_world(over, height[1][over], PIXEL_SIZE), rotations[1])
     assert np.allclose(action["place"][0], expected, atol=1e-6)
 
 

@@ -22,14 +22,38 @@ from nerf_transporter.methods.base import (
 from nerf_transporter.models.transport import correlate_spectrum, kernel_spectrum
 
 
+def over_workspace(points: np.ndarray) -> np.ndarray:
+    """Whether world points (..., 3) lie within the workspace bounds in x and y (z free)."""
+    points = np.asarray(points, dtype=float)
+    (x_low, x_high), (y_low, y_high) = g.BOUNDS[0], g.BOUNDS[1]
+    x, y = points[..., 0], points[..., 1]
+    return (x_low <= x) & (x <= x_high) & (y_low <= y) & (y <= y_high)
+
+
+def pixels_over_workspace(
+    height: np.ndarray, view_rotation: np.ndarray, pixel_size: float = g.PIXEL_SIZE
+) -> np.ndarray:
+    """(H, W) mask of a view's pixels whose surface point (at the view's height image) lies over the
+    workspace. A tilted view's edge pixels see the table beyond it (a view rolled by a sees the
+    table point y = y' / cos(a) at its pixel y').
+
+    A choice of the policy, not a convention of the world, so it lives here and not in `geometry`
+    (whose source is part of the world fingerprint, `sim/fingerprint.py`).
+    """
+    pixels = np.stack(np.indices(np.shape(height)), axis=-1)
+    return over_workspace(
+        g.view_to_world(g.pixel_to_world(pixels, height, pixel_size), view_rotation)
+    )
+
+
 class Mira(AttentionTransportMethod):
     """Pick on the top-down imagery view; place by one transport search over all views.
 
     Training: the place label lies in view 0 of `place_images` (the positive view); the other K views
     are negatives of the same scene, and one softmax runs over views x rotations x pixels.
     `view_chunk` views are correlated at a time in `act` (bounds memory over a 49- or 121-view grid).
-    `act` places only at pixels over the workspace (`geometry.view_pixels_over_workspace`): a steep
-    view's edge pixels see the table beyond it, where no target lies and the robot does not reach.
+    `act` places only at pixels over the workspace (`pixels_over_workspace`): a steep view's edge
+    pixels see the table beyond it, where no target lies and the robot does not reach.
     """
 
     name = "mira"
@@ -83,7 +107,7 @@ class Mira(AttentionTransportMethod):
         over_workspace = torch.from_numpy(
             np.stack(
                 [
-                    g.view_pixels_over_workspace(view_height, rotation, self.pixel_size)
+                    pixels_over_workspace(view_height, rotation, self.pixel_size)
                     for view_height, rotation in zip(height, g.view_rotations(views), strict=True)
                 ]
             )
