@@ -1,6 +1,7 @@
 """`nerf-transporter run-cell`: protocol, skip, resume and the cell JSON (fit and test faked here;
 the slow test at the end runs a tiny cell for real)."""
 
+import itertools
 import json
 import os
 import subprocess
@@ -239,6 +240,17 @@ def test_a_fit_without_pybullet_is_validated_where_the_cell_is_tested(fakes, mon
     assert evaluated == [("validation", name) for name in rounds] + [("test", rounds[2])]
     assert [r["success_rate"] for r in stored["validation"]] == [0.25, 0.75, 0.75, 0.5]
     assert stored["checkpoint"]["step"] == 6 and stored["checkpoint"]["validation_successes"] == 3
+
+
+def test_a_cell_records_the_commit_it_started_from(fakes, monkeypatch):
+    """A commit made while a cell runs is not the code its validation and test ran."""
+    calls = itertools.count()
+    monkeypatch.setattr(
+        cell_module, "git_state", lambda: {"commit": f"call {next(calls)}", "dirty": False}
+    )
+    _, stored = run()
+    assert stored["git"]["commit"] == "call 0"
+    assert [segment["commit"] for segment in stored["fit_git"]] == ["call 1"]
 
 
 def test_a_test_with_erred_episodes_writes_no_cell_and_is_tested_again(fakes, monkeypatch, capsys):

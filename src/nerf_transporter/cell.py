@@ -408,6 +408,9 @@ def run_cell(
     PyBullet): only the fit, `without_closed_loop`; returns (run folder, None)."""
     if method not in METHODS:
         raise CellError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+    # the code this process runs (validation and test run in it): a commit made while the cell
+    # runs, hours later, does not change it
+    code = git_state()
     input_kind = METHODS[method].input_kind
     if imagery is not None and input_kind != "imagery":
         raise CellError(
@@ -483,7 +486,7 @@ def run_cell(
             "test": describe_device(device),
         },
         "torch": torch.__version__,
-        "git": git_state(),
+        "git": code,
         "fit_git": [segment["git"] for segment in segments],
         "world": record["world"],
         "run_dir": str(run_dir),
