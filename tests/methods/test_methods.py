@@ -93,9 +93,8 @@ def test_mira_act_places_in_the_best_view():
 def test_a_steep_view_sees_the_table_beyond_the_workspace_at_its_edges():
     everywhere = pixels_over_workspace(np.full(g.image_shape(), 0.1), np.eye(3))
     assert everywhere.all()
-    roll = (
-        math.pi / 4
-    )  # a roll turns y only: a row is over the workspace iff |y'| / cos(roll) <= 0.5
+    # a roll turns y only: a row is over the workspace iff |y'| / cos(roll) <= 0.5
+    roll = math.pi / 4
     rotation = g.tilt_matrix(roll, 0.0)
     over = pixels_over_workspace(table_height_in_view(rotation, g.PIXEL_SIZE), rotation)
     rows_over = over.all(axis=1)

@@ -104,7 +104,7 @@ class Mira(AttentionTransportMethod):
         pick = self.predict_pick(pick_image)
         kernels = self.transport.kernels(pick_image, torch.tensor([pick], device=self.device))
         kernel_f = kernel_spectrum(kernels, height.shape[1:])
-        over_workspace = torch.from_numpy(
+        reachable_pixels = torch.from_numpy(
             np.stack(
                 [
                     pixels_over_workspace(view_height, rotation, self.pixel_size)
@@ -117,7 +117,7 @@ class Mira(AttentionTransportMethod):
             chunk = images[None, start : start + self.view_chunk].to(self.device)
             query = self.transport.query_features(chunk)
             logits = correlate_spectrum(query, kernel_f, self.crop_size)[0]
-            reachable = over_workspace[start : start + self.view_chunk, None]
+            reachable = reachable_pixels[start : start + self.view_chunk, None]
             logits = logits.masked_fill(~reachable, -float("inf"))
             value = float(logits.max())
             if value > best_value:
