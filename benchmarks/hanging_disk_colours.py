@@ -1,13 +1,14 @@
 """Success of hanging-disks cells by the colour of each test scene's disk.
 
-hanging-disks draws the disk's and the stand's colours from one palette for training and
-validation seeds and from a disjoint one for test seeds (`sim/tasks/hanging_disks.py`). This
-replays each test seed's reset (no robot motion) to read the colours it drew, and breaks every
-cell's recorded test outcomes down by the disk's colour, to show which unseen colours a policy
-misses.
+hanging-disks draws the disk's colour from the anchor's training colours for training and
+validation seeds and from its evaluation colours for test seeds, four of which no training seed
+has (`sim/tasks/hanging_disks.py`); the stand is always brown. This replays each test seed's reset
+(no robot motion) to read the colour it drew, and breaks every cell's recorded test outcomes down
+by the disk's colour, to show which colours a policy misses. The cells must be of this checkout's
+world, whose seeds build the scenes replayed here.
 
     OMP_NUM_THREADS=1 PYTHONPATH=src python benchmarks/hanging_disk_colours.py \
-        results/hanging-disks/*.json results/sweep/colour-augment/hanging-disks/*.json [--json]
+        results/hanging-disks/*.json [--json]
 
 docs/failures.md reports and reads these figures.
 """

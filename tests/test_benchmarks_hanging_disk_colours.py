@@ -2,22 +2,26 @@
 
 import json
 
-from nerf_transporter.sim.tasks.hanging_disks import TEST_COLORS, TRAIN_COLORS
+from nerf_transporter.evaluation.metrics import summarize
+from nerf_transporter.sim.fingerprint import world_fingerprint
+from nerf_transporter.sim.tasks.hanging_disks import TEST_COLORS
 from tests.helpers.benchmarks import load_benchmark
 
 
-def test_test_scenes_draw_unseen_colours_and_each_outcome_is_counted_once(tmp_path, capsys):
+def test_test_scenes_draw_the_evaluation_colours_and_each_outcome_is_counted_once(tmp_path, capsys):
     script = load_benchmark("hanging_disk_colours")
     seeds = [1, 3, 5, 7, 9, 11]
     colours = script.scene_colours(seeds)
     assert colours == script.scene_colours(seeds)  # a function of the seed
-    assert all(c["disk"] in TEST_COLORS and c["stand"] in TEST_COLORS for c in colours.values())
-    assert not {c["disk"] for c in colours.values()} & set(TRAIN_COLORS)
+    assert all(c["disk"] in TEST_COLORS and c["stand"] == "brown" for c in colours.values())
     results = [{"seed": s, "success": s in (1, 7), "error": None} for s in seeds]
     results.append({"seed": 13, "success": False, "error": "RuntimeError: cache"})  # left out
-    cell = {"task": "hanging-disks", "method": "transporter_se2", "imagery": None}
+    identity = {"task": "hanging-disks", "setting": "normal", "method": "transporter_se2"}
+    identity |= {"imagery": None}
+    cell = identity | summarize(results) | {"world": world_fingerprint()}
     cell |= {
-        "protocol": {"colour_augment": True, "steps": 6000, "lr": 3e-4},
+        "protocol": identity | {"colour_augment": True, "steps": 6000, "lr": 3e-4},
+        "checkpoint": {"step": 6000},
         "episode_results": results,
     }
     counts = script.by_disk_colour(cell, colours)

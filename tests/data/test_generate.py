@@ -13,7 +13,7 @@ from nerf_transporter.data import episode as ep
 from nerf_transporter.data import generate as gen
 from nerf_transporter.data import info
 from nerf_transporter.splits import split_seed
-from tests.helpers.fake_sim import PIXEL, changed_world
+from tests.helpers.fake_sim import PIXEL, FakeEnv, changed_world
 
 
 def oracle_config(**changes) -> gen.GenerationConfig:
@@ -50,6 +50,19 @@ def test_generate_keeps_successes_and_reruns_add_nothing(fake_world, tmp_path):
     assert episode.arrays["imagery"]["height"].dtype == np.float16
     assert episode.arrays["nerf_views"]["rgb"].shape == (2, 6, 8, 3)
     assert json.loads((dataset / "dataset.json").read_text())["pixel_size"] == PIXEL
+
+
+def test_an_episode_records_the_strict_check_of_its_oracle_run(fake_world, tmp_path, monkeypatch):
+    class JudgedEnv(FakeEnv):
+        def step(self, action):
+            *outcome, step_info = super().step(action)
+            return *outcome, step_info | {"strict_success": False}  # the reward won, not the strict
+
+    monkeypatch.setattr(gen, "_env", lambda config: JudgedEnv())
+    dataset = gen.generate_dataset(oracle_config(), 1, tmp_path, progress=False)
+    (ref,) = ep.list_episodes(dataset)
+    meta = ep.read_meta(ref.path)
+    assert (meta["success"], meta["strict_success"]) == (True, False)
 
 
 def test_killed_generation_resumes_without_duplicates(fake_world, tmp_path, monkeypatch):

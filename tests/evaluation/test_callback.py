@@ -17,6 +17,7 @@ from torch.utils.data import DataLoader
 from nerf_transporter.data.generate import GenerationConfig
 from nerf_transporter.data.seeds import seed_loader
 from nerf_transporter.evaluation import callback as callback_module
+from nerf_transporter.evaluation import testing as testing_module
 from nerf_transporter.evaluation.callback import SuccessRateCallback
 from nerf_transporter.evaluation.metrics import wilson_interval
 from nerf_transporter.evaluation.report import main as report_main
@@ -205,11 +206,24 @@ def test_no_results_file_is_replaced(fitted, tmp_path):
     ]
 
 
-class ErringEvaluator:
-    """Stands in for the Evaluator: the first seed errs, the other episodes succeed."""
+class FakeEvaluator:
+    """Stands in for the Evaluator (`run` says what the episodes give)."""
 
     def __init__(self, spec):
         self.spec = spec
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc_info):
+        self.close()
+
+    def close(self):
+        pass
+
+
+class ErringEvaluator(FakeEvaluator):
+    """The first seed errs, the other episodes succeed."""
 
     def run(self, method, seeds, **options):
         return [
@@ -221,9 +235,6 @@ class ErringEvaluator:
             )
             for index, seed in enumerate(seeds)
         ]
-
-    def close(self):
-        pass
 
 
 def test_a_validation_round_with_errors_is_not_used_to_select_checkpoints(tmp_path, monkeypatch):
@@ -252,3 +263,64 @@ def test_a_validation_round_with_errors_is_not_used_to_select_checkpoints(tmp_pa
     assert events.Scalars("eval/success_rate")[0].value == 1.0
     # ... but ModelCheckpoint saw no usable rate for this round
     assert math.isnan(trainer.callback_metrics["eval/success_rate"].item())
+    # episodes without the strict check (None) give no strict rate, rather than a rate of 0
+    assert "eval/strict_success_rate" not in events.Tags()["scalars"]
+
+
+class StrictEvaluator(FakeEvaluator):
+    """Every episode wins the anchor's reward, the first alone also the stricter 6-DoF check."""
+
+    def run(self, method, seeds, **options):
+        return [
+            EpisodeResult(
+                seed=seed,
+                success=True,
+                failure=None,
+                strict_success=index == 0,
+                strict_errors={"position_error": 0.002 if index == 0 else 0.02},
+            )
+            for index, seed in enumerate(seeds)
+        ]
+
+
+def test_validation_logs_the_strict_rate_beside_the_success_rate(tmp_path, monkeypatch):
+    monkeypatch.setattr(callback_module, "Evaluator", StrictEvaluator)
+    callback = SuccessRateCallback(every_n_steps=2, episodes=3, cache_dir=None)
+    trainer = pl.Trainer(
+        max_steps=2,
+        logger=TensorBoardLogger(tmp_path, name="logs"),
+        callbacks=[callback],
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        accelerator="cpu",
+    )
+    trainer.fit(TinyStateMethod(), datamodule=TinyData())
+    events = EventAccumulator(trainer.logger.log_dir).Reload()
+    assert events.Scalars("eval/success_rate")[0].value == 1.0
+    assert events.Scalars("eval/strict_success_rate")[0].value == pytest.approx(1 / 3)
+    low, high = wilson_interval(1, 3)
+    assert events.Scalars("eval/strict_success_rate_low")[0].value == pytest.approx(low)
+    assert events.Scalars("eval/strict_success_rate_high")[0].value == pytest.approx(high)
+
+
+def test_the_results_file_records_the_strict_check(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(testing_module, "Evaluator", StrictEvaluator)
+    tester = pl.Trainer(
+        logger=False,
+        enable_progress_bar=False,
+        accelerator="cpu",
+        callbacks=[ClosedLoopTestCallback()],
+    )
+    metrics = tester.test(TinyStateMethod(), datamodule=TinyData())[0]
+    (path,) = tmp_path.rglob("results-*.json")
+    results = json.loads(path.read_text())
+    assert [e["strict_success"] for e in results["episode_results"]] == [True, False]
+    assert results["episode_results"][1]["strict_errors"] == {"position_error": 0.02}
+    assert (results["successes"], results["strict_successes"]) == (2, 1)
+    assert results["strict_success_rate"] == 0.5
+    low, high = wilson_interval(1, 2)
+    assert (results["strict_ci_low"], results["strict_ci_high"]) == pytest.approx((low, high))
+    assert metrics["test/strict_success_rate"] == pytest.approx(0.5)
+    assert "strict 6-DoF success: 50% (2, " in capsys.readouterr().out

@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from nerf_transporter.evaluation.metrics import (
+    STRICT_FIGURES,
     SuccessRate,
     paired_comparison,
     summarize,
@@ -81,6 +82,30 @@ def test_summarize_counts_failure_reasons_and_keeps_errors_out_of_the_rate():
     assert summary["ci_low"] < 1 / 3 < summary["ci_high"]
     assert summary["errors"] == 1 and summary["erred_seeds"] == [5]
     assert summary["error_reasons"] == {"observation raised OSError: disk full": 1}
+
+
+def test_summarize_gives_the_strict_rate_beside_the_table_s_and_none_without_it():
+    def record(seed, success, strict, error=None):
+        return {"seed": seed, "success": success, "strict_success": strict, "error": error}
+
+    summary = summarize(
+        [
+            record(1, True, True),
+            record(3, True, False),  # the anchor's reward, but off the strict 6-DoF pose
+            record(5, False, False),
+            record(7, False, None, error="observation raised OSError: disk full"),
+        ]
+    )
+    assert (summary["successes"], summary["strict_successes"], summary["episodes"]) == (2, 1, 3)
+    assert summary["strict_success_rate"] == pytest.approx(1 / 3)
+    assert (summary["strict_ci_low"], summary["strict_ci_high"]) == wilson_interval(1, 3)
+    # a record that ran without the strict check (written before it was recorded) is no failure:
+    # there is no strict rate at all
+    old = {"seed": 9, "success": True, "error": None}
+    legacy = summarize([record(1, True, True), old])
+    assert legacy["success_rate"] == 1.0
+    assert [legacy[key] for key in STRICT_FIGURES] == [None] * 4
+    assert summarize([old])["strict_success_rate"] is None
 
 
 def test_paired_comparison_counts_common_seeds_and_gives_the_exact_mcnemar_p():

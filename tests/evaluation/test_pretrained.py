@@ -11,8 +11,11 @@ import yaml
 from nerf_transporter import geometry as g
 from nerf_transporter.atomic import write_json
 from nerf_transporter.cli import main as cli_main
+from nerf_transporter.evaluation import pretrained as pretrained_module
 from nerf_transporter.evaluation.checkpoints import load_checkpoint
 from nerf_transporter.evaluation.pretrained import (
+    ForeignWorldError,
+    check_world,
     export_pretrained,
     load_manifest,
     policy_file_name,
@@ -23,6 +26,7 @@ from nerf_transporter.evaluation.pretrained import (
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
 from nerf_transporter.evaluation.testing import results_directory, results_record
 from nerf_transporter.pretrained import PRETRAINED_DIR
+from nerf_transporter.sim.fingerprint import world_fingerprint
 from tests.helpers.state_run import trained_state_mlp
 
 
@@ -84,6 +88,7 @@ def test_export_keeps_weights_and_provenance_and_try_runs_it(tmp_path, monkeypat
     assert state["provenance"]["test"]["seeds"] == [1]
     assert load_manifest(folder) == [entry]
     assert entry["sha256"] == sha256(shipped)
+    assert entry["test"]["world"] == world_fingerprint()  # trained and tested in this world
 
     record = try_policy(
         "block-insertion", "gt_state_mlp", 1, tmp_path / "videos", folder=folder, cache_dir=None
@@ -95,6 +100,10 @@ def test_export_keeps_weights_and_provenance_and_try_runs_it(tmp_path, monkeypat
     assert sorted(p.name for p in (tmp_path / "videos").glob("*.mp4")) == [
         "block-insertion-normal-seed1-gt_state_mlp.mp4"
     ]
+    # once the world has changed, the same policy is refused by name
+    monkeypatch.setattr(pretrained_module, "world_fingerprint", lambda: "f" * 16)
+    with pytest.raises(ForeignWorldError, match="block-insertion/gt_state_mlp"):
+        try_policy("block-insertion", "gt_state_mlp", 1, None, folder=folder, cache_dir=None)
 
 
 def test_export_refuses_the_results_of_another_checkpoint(tmp_path, monkeypatch):
@@ -113,6 +122,59 @@ def test_try_names_what_is_shipped_for_an_unknown_policy(capsys):
     error = capsys.readouterr().err
     assert "no pretrained nope policy for block-insertion" in error
     assert "block-insertion/mira" in error
+
+
+def test_try_refuses_an_unwritable_video_folder_before_running_anything(tmp_path, capsys):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    assert cli_main(["try", "--video", str(blocker / "videos")]) == 2
+    error = capsys.readouterr().err
+    assert "--video" in error and "is not a folder" in error
+
+
+ANOTHER_WORLD = "0" * 16  # the fingerprint of a world no shipped policy was trained in
+
+
+def refuse_to_load(*args, **kwargs):
+    raise AssertionError("a policy of another world was loaded")
+
+
+def test_try_refuses_a_shipped_policy_of_another_world_by_name(monkeypatch, capsys):
+    monkeypatch.setattr(pretrained_module, "world_fingerprint", lambda: ANOTHER_WORLD)
+    monkeypatch.setattr(pretrained_module, "load_checkpoint", refuse_to_load)
+    (entry,) = [e for e in SHIPPED if (e["task"], e["method"]) == ("block-insertion", "mira")]
+    assert cli_main(["try", "--task", "block-insertion", "--method", "mira"]) == 2
+    error = capsys.readouterr().err
+    assert "block-insertion/mira (block-insertion-mira.ckpt)" in error
+    assert f"trained in world {entry['test']['world']}" in error
+    assert f"this package's world is {ANOTHER_WORLD}" in error
+    assert "re-shipped" in error and "nerf-transporter run-cell" in error
+
+
+def test_try_list_marks_the_shipped_policies_of_another_world(monkeypatch, capsys):
+    world = SHIPPED[0]["test"]["world"]
+    monkeypatch.setattr(pretrained_module, "world_fingerprint", lambda: world)
+    assert cli_main(["try", "--list"]) == 0
+    out = capsys.readouterr().out
+    assert shipped_table(SHIPPED) in out  # the table as the README has it, then the marks
+    marked = [line for line in out.splitlines() if line.startswith("- ")]
+    foreign = [e for e in SHIPPED if e["test"]["world"] != world]
+    assert marked == [
+        f"- {e['task']}/{e['method']} ({e['file']}): world {e['test']['world']}" for e in foreign
+    ]
+    monkeypatch.setattr(pretrained_module, "world_fingerprint", lambda: ANOTHER_WORLD)
+    assert cli_main(["try", "--list"]) == 0
+    out = capsys.readouterr().out
+    assert len([line for line in out.splitlines() if line.startswith("- ")]) == len(SHIPPED)
+
+
+def test_a_policy_is_run_only_in_the_world_it_was_trained_in():
+    entry = {"task": "block-insertion", "method": "mira", "file": "x.ckpt", "commit": "abc1234"}
+    check_world(entry | {"test": {"world": "1" * 16}}, "1" * 16)  # its own world: no objection
+    with pytest.raises(ForeignWorldError, match="trained in world 1{16}, .* is 2{16}"):
+        check_world(entry | {"test": {"world": "1" * 16}}, "2" * 16)
+    with pytest.raises(ForeignWorldError, match="world unrecorded"):  # no world: not this one
+        check_world(entry | {"test": {}}, "2" * 16)
 
 
 def synthetic_observation(input_kind: str, pixel_size: float) -> dict:

@@ -7,12 +7,12 @@ import torch
 
 from nerf_transporter.data.observation import SceneSpec
 from nerf_transporter.evaluation import rollout
-from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
+from nerf_transporter.evaluation.rollout import EpisodeResult, EvaluationSpec, Evaluator
 from nerf_transporter.sim import make_env
 
 UPRIGHT = np.array([0.0, 0.0, 0.0, 1.0])
 ACTION = {
-    "pick": (np.array([0.5, 0.0, 0.02]), UPRIGHT),
+    "pick": (np.array([0.3514, -0.2260, 0.04]), UPRIGHT),  # on block-insertion seed 3's block
     "place": (np.array([0.5, 0.2, 0.02]), UPRIGHT),
 }
 
@@ -51,6 +51,62 @@ class CrashingStepFactory:
 
             env.step = crash
         return env
+
+
+class JudgedEnv:
+    """Stands in for the simulator (no PyBullet): every step ends with the info it was given, or
+    raises `raises`."""
+
+    frame_callback = None
+
+    def __init__(self, info, raises=None):
+        self.info, self.raises = info, raises
+
+    def reset(self, seed):
+        return {"state": np.zeros(14, dtype=np.float32)}, {}
+
+    def step(self, action):
+        if self.raises is not None:
+            raise self.raises
+        return None, float(self.info["success"]), True, False, dict(self.info)
+
+    def close(self):
+        pass
+
+
+# the anchor's reward is won, the project's stricter 6-DoF check (1 cm here) is not
+JUDGED = {
+    "success": True,
+    "failure": None,
+    "position_error": 0.012,
+    "tilt_error": 0.0,
+    "yaw_error": 0.0,
+    "strict_success": False,
+    "strict_errors": {"position_error": 0.012, "tilt_error": 0.0, "yaw_error": 0.0},
+}
+
+
+def judged_episode(policy, **env_options):
+    spec = EvaluationSpec(task="block-insertion", imagery="oracle", cache_dir=None)
+    with Evaluator(spec, lambda task, setting, **_: JudgedEnv(JUDGED, **env_options)) as evaluator:
+        return evaluator.run_episode(policy, 1)
+
+
+def test_an_episode_records_the_strict_check_beside_the_reward():
+    result = judged_episode(FixedPolicy())
+    assert result.outcome == "success" and result.strict_success is False
+    record = result.to_json()
+    assert (record["success"], record["strict_success"]) == (True, False)
+    assert record["strict_errors"] == JUDGED["strict_errors"]
+    assert EpisodeResult.from_json(record) == result
+    # a simulator fault during the motion fails the strict check too; an erred episode has none
+    faulted = judged_episode(FixedPolicy(), raises=RuntimeError("Not connected"))
+    assert faulted.outcome == "failure" and faulted.strict_success is False
+    erred = judged_episode(FixedPolicy(error=ValueError("no valid pick pixel")))
+    assert erred.outcome == "error" and erred.to_json()["strict_success"] is None
+    # a record written before the strict check was recorded still loads, without one
+    old = {"outcome": "success", "seed": 1, "success": True, "failure": None, "error": None}
+    assert EpisodeResult.from_json(old).strict_success is None
 
 
 def test_an_episode_whose_simulation_raises_is_a_failure_and_the_run_goes_on():

@@ -67,3 +67,29 @@ def test_inverse_kinematics_round_trip():
         checked += 1
     assert checked >= 10
     env.close()
+
+
+POSE = (np.array([0.5, 0.0, 0.05]), np.array([0.0, 0.0, 0.0, 1.0]))
+
+
+@pytest.mark.parametrize(
+    ("action", "problem"),
+    [
+        (None, "an action is {'pick': pose, 'place': pose}"),
+        ({"pick": POSE}, "an action is {'pick': pose, 'place': pose}"),
+        ({"pick": ((0.5, 0.0), (0, 0, 0, 1)), "place": POSE}, "got shapes (2,) and (4,)"),
+        ({"pick": np.zeros(7), "place": POSE}, "action['pick'] must be (position [3], quaternion"),
+        ({"pick": POSE, "place": ((0.5, 0.0, 0.05), (0, 0, 1))}, "got shapes (3,) and (3,)"),
+        ({"pick": POSE, "place": None}, "action['place'] must be (position [3], quaternion [4])"),
+    ],
+    ids=["none", "no-place", "short-position", "flat-array", "short-quaternion", "none-pose"],
+)
+def test_a_malformed_action_or_a_step_after_close_is_a_named_error(action, problem):
+    env = make_env("block-insertion")
+    env.reset(seed=3)
+    with pytest.raises(ValueError) as error:
+        env.step(action)
+    assert problem in str(error.value)
+    env.close()
+    with pytest.raises(RuntimeError, match=r"step\(\) after close\(\)"):
+        env.step({"pick": POSE, "place": POSE})

@@ -24,7 +24,7 @@ def test_a_changed_constant_changes_its_module_digest(tmp_path):
     root = _copy_package(tmp_path)
     before = fingerprint.module_digests(root)
     assert before == fingerprint.module_digests()  # the copy is the installed package
-    _edit(root / BLOCK, "CLEARANCE = 0.004", "CLEARANCE = 0.012")
+    _edit(root / BLOCK, "CLEARANCE = 0.009", "CLEARANCE = 0.012")
     after = fingerprint.module_digests(root)
     assert [name for name in before if after[name] != before[name]] == [BLOCK]
     old_world, new_world = fingerprint.world_description(), fingerprint.world_description(root)
@@ -36,7 +36,9 @@ def test_an_edited_comment_changes_nothing(tmp_path):
     root = _copy_package(tmp_path)
     before = fingerprint.module_digests(root)
     _edit(
-        root / BLOCK, "# slot clearance per side (m)", "# clearance of the slot, per side, metres"
+        root / BLOCK,
+        "# m between a centred block and each wall",
+        "# metres from a centred block to each wall",
     )
     assert fingerprint.module_digests(root) == before
     assert fingerprint.world_description(root) == fingerprint.world_description()

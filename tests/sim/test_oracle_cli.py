@@ -26,7 +26,10 @@ def test_episode_lines_json_summary_and_mp4_video(tmp_path, capsys):
         "episodes": 2,
         "successes": summary["successes"],
         "success_rate": summary["successes"] / 2,
+        "strict_successes": summary["strict_successes"],
+        "strict_success_rate": summary["strict_successes"] / 2,
     }
+    assert summary["strict_successes"] <= 2
     reader = imageio.get_reader(video)
     assert reader.get_meta_data()["codec"] == "h264"
     assert sum(1 for _ in reader) > 20  # the arm moves through the whole episode

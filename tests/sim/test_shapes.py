@@ -58,25 +58,20 @@ def test_kit_shape_pieces_are_closed_and_fill_the_shape(name):
     assert shapes.polygon_area(shape.outline) > 0
     assert shapes.is_star_shaped(shape.outline)
     volume = _volume(shapes.kit_object_pieces(shape))
-    assert volume == pytest.approx(shapes.polygon_area(shape.outline) * shapes.KIT_THICKNESS)
-    floor, rim = shapes.kit_plate_pieces(shape)
-    side = 2 * shapes.kit_half_size(shape)
-    cavity = shapes.offset_polygon(shape.outline, shapes.KIT_CLEARANCE)
-    assert _volume(rim) == pytest.approx(
-        (side**2 - shapes.polygon_area(cavity)) * shapes.KIT_CAVITY_DEPTH
-    )
-    assert _volume(floor) == pytest.approx(side**2 * shapes.KIT_FLOOR_THICKNESS)
+    assert volume == pytest.approx(shapes.polygon_area(shape.outline) * 0.02)  # 2 cm thick
 
 
 @pytest.mark.parametrize("name", sorted(shapes.KIT_SHAPES))
-def test_cavity_holds_the_shape_with_clearance(name):
-    outline = shapes.KIT_SHAPES[name].outline
-    cavity = shapes.offset_polygon(outline, shapes.KIT_CLEARANCE)
-    assert shapes.is_star_shaped(cavity)
-    # every edge moved out by exactly the clearance
-    for a, b, a2 in zip(outline, np.roll(outline, -1, axis=0), cavity, strict=True):
-        normal = np.array([b[1] - a[1], a[0] - b[0]]) / np.linalg.norm(b - a)
-        assert np.dot(a2 - a, normal) == pytest.approx(shapes.KIT_CLEARANCE)
+def test_kit_objects_have_the_anchors_size(name):
+    """The anchor's kitting meshes: 5.7 cm along the longer side, 2 cm thick, origin at the
+    bottom face."""
+    points = np.concatenate(shapes.kit_object_pieces(shapes.KIT_SHAPES[name]))
+    assert points[:, 2].min() == pytest.approx(0.0) and points[:, 2].max() == pytest.approx(0.02)
+    assert np.ptp(points[:, :2], axis=0).max() == pytest.approx(0.057)
+
+
+def test_kit_plate_is_the_anchors_box():
+    assert shapes.KIT_PLATE_SIZE == (0.1, 0.1, 0.005)
 
 
 def test_fan_pieces_are_convex():
@@ -84,16 +79,55 @@ def test_fan_pieces_are_convex():
         assert all(shapes.is_convex(piece) for piece in shapes.fan_pieces(shape.outline))
 
 
-def test_bowl_disk_and_stand_meshes_are_closed():
-    bowl = _volume(shapes.bowl_pieces())
-    assert 0 < bowl < math.pi * shapes.BOWL_RIM_RADIUS**2 * shapes.BOWL_HEIGHT / 3
-    disk = _volume(shapes.disk_pieces())
-    ring = math.pi * (shapes.DISK_RADIUS**2 - shapes.DISK_HOLE_RADIUS**2) * shapes.DISK_THICKNESS
-    assert disk == pytest.approx(ring, rel=0.05)
-    assert _volume(shapes.stand_pieces()) > 0
+def test_bowl_has_the_anchors_rim_depth_and_origin_offset():
+    """The anchor's cup mesh: rim 9.2-9.4 cm across, 5.6 cm tall from an underside in the origin's
+    plane, its axis 2.15 cm off the origin; a cavity a 4 cm cube turns in, floored 1.45 cm up."""
+    pieces = shapes.bowl_pieces()
+    points = np.concatenate(pieces)
+    low, high = points.min(axis=0), points.max(axis=0)
+    assert (high - low)[:2].min() >= 0.092 and (high - low)[:2].max() <= 0.094 + 1e-9
+    assert low[2] == pytest.approx(0.0) and high[2] == pytest.approx(0.056)
+    axis = (low[:2] + high[:2]) / 2
+    assert axis == pytest.approx([-0.0203, 0.0071], abs=1e-9)
+    assert np.linalg.norm(axis) == pytest.approx(0.0215, abs=5e-4)
+    inner_apothem = shapes.BOWL_INNER_RADIUS * math.cos(math.pi / shapes.BOWL_SEGMENTS)
+    assert shapes.CUBE_SIZE / math.sqrt(2) < inner_apothem < shapes.CUBE_SIZE / 2 + 0.012
+    assert shapes.bowl_seat() == pytest.approx([-0.0203, 0.0071, 0.0145 + 0.02])
+
+    # closed pieces filling a foot and a straight wall (polygons of BOWL_SEGMENTS sides)
+    def area(radius):
+        return shapes.polygon_area(shapes.regular_polygon(shapes.BOWL_SEGMENTS, radius))
+
+    foot = area(shapes.BOWL_FOOT_RADIUS) * shapes.BOWL_FLOOR_HEIGHT
+    wall = (area(shapes.BOWL_RIM_RADIUS) - area(shapes.BOWL_INNER_RADIUS)) * (
+        shapes.BOWL_HEIGHT - shapes.BOWL_FLOOR_HEIGHT
+    )
+    assert _volume(pieces) == pytest.approx(foot + wall)
 
 
-def test_disk_hole_clears_the_rod():
+def test_disk_is_the_anchors_ring_of_closed_pieces():
+    """Outer radius 45 mm, hole 22.5 mm (polygon vertices on both), 10 mm thick about the origin."""
+    pieces = shapes.disk_pieces()
+    points = np.concatenate(pieces)
+    radii = np.linalg.norm(points[:, :2], axis=1)
+    assert radii.min() == pytest.approx(0.0225) and radii.max() == pytest.approx(0.045)
+    assert (points[:, 2].min(), points[:, 2].max()) == pytest.approx((-0.005, 0.005))
+    outer, hole = (shapes.regular_polygon(shapes.DISK_SEGMENTS, r) for r in (0.045, 0.0225))
+    area = shapes.polygon_area(outer) - shapes.polygon_area(hole)
+    assert _volume(pieces) == pytest.approx(area * 0.01)
+
+
+def test_stand_is_the_anchors_plate_and_rod():
+    """Plate 0.1 x 0.1 x 0.01 m centred on the origin (seen as a 5 cm box); rod of radius 5 mm,
+    0.10 m long, centred 0.03 m up: tip 0.08 m up, 75 mm above the plate; a disk lies 0.01 m up."""
+    visual, collision = shapes.stand_parts()
+    plate, rod = collision
+    assert plate.size == pytest.approx((0.1, 0.1, 0.01)) and plate.position == (0, 0, 0)
+    assert visual[0].size == pytest.approx((0.05, 0.05, 0.01)) and visual[1] == rod
+    assert (rod.radius, rod.length) == pytest.approx((0.005, 0.1))
+    assert rod.position == pytest.approx((0, 0, 0.03))
+    assert shapes.rod_tip_height() == pytest.approx(0.08)
+    assert shapes.rod_tip_height() - plate.size[2] / 2 == pytest.approx(0.075)
+    assert shapes.disk_rest_height() == pytest.approx(0.01)
     inner_apothem = shapes.DISK_HOLE_RADIUS * math.cos(math.pi / shapes.DISK_SEGMENTS)
-    assert inner_apothem - shapes.ROD_RADIUS >= 0.005
-    assert shapes.ROD_LENGTH > shapes.DISK_THICKNESS
+    assert inner_apothem - rod.radius > 0.017  # the hole clears the rod by 17 mm

@@ -3,11 +3,13 @@
 Configured in the YAML under `trainer.callbacks`; every `every_n_steps` optimiser steps and at the end
 of fit it runs `episodes` validation episodes (`splits.split_seed("validation", i)`) and logs
 `eval/success_rate`, its 95% Wilson interval (`eval/success_rate_low`, `eval/success_rate_high`) and
-`eval/episodes`, plus an image strip of the first rollouts (top-down view before the action with the
-chosen pick and place drawn in, and after it; captioned with the seed and the outcome or its reason,
-framed lime on success, magenta on failure, grey on error). The first `video_episodes` of each
-round are recorded as mp4s in the run folder (`videos/step<N>/`), the first also as an animated
-GIF in TensorBoard (`eval/rollout_video`). `ModelCheckpoint(monitor="eval/success_rate")` with the
+`eval/episodes`, the rate of the project's stricter 6-DoF check with its interval
+(`eval/strict_success_rate`, `eval/strict_success_rate_low`, `eval/strict_success_rate_high`; not
+logged where an episode that ran was not judged by it), plus an image strip of the first rollouts
+(top-down view before the action with the chosen pick and place drawn in, and after it; captioned
+with the seed and the outcome or its reason, framed lime on success, magenta on failure, grey on
+error). The first `video_episodes` of each round are recorded as mp4s in the run folder
+(`videos/step<N>/`), the first also as an animated GIF in TensorBoard (`eval/rollout_video`). `ModelCheckpoint(monitor="eval/success_rate")` with the
 same `every_n_train_steps` keeps the checkpoints with the best validation success (the Transporter
 authors' protocol). Under DDP the seeds are shared out among the processes and the counts summed.
 
@@ -122,6 +124,8 @@ class SuccessRateCallback(Callback):
         self.video_episodes = video_episodes
         self.metric = SuccessRate()
         self.error_count = SumMetric()  # erred episodes, summed over DDP processes
+        self.strict_metric = SuccessRate()  # the strict 6-DoF check, over the episodes judged by it
+        self.unjudged_count = SumMetric()  # episodes that ran without a strict check (None)
         self._evaluator: Evaluator | None = None
         self._last_step: int | None = None
 
@@ -178,6 +182,19 @@ class SuccessRateCallback(Callback):
         misses = [f"{r.seed}: {r.failure_text()}" for r in results if not r.success]
         counts = {"successes": successes, "episodes": episodes, "errors": errors}
         summary = cell(counts | {"ci_low": low, "ci_high": high})
+        strict = self._strict_counts(pl_module, results)
+        if strict is not None:
+            strict_low, strict_high = wilson_interval(*strict)
+            figures |= {
+                "eval/strict_success_rate": strict[0] / strict[1],
+                "eval/strict_success_rate_low": strict_low,
+                "eval/strict_success_rate_high": strict_high,
+            }
+            strict_cell = cell(
+                {"successes": strict[0], "episodes": strict[1]}
+                | {"ci_low": strict_low, "ci_high": strict_high}
+            )
+            summary += f", strict 6-DoF {strict_cell}"
         rank_zero_info(
             f"step {trainer.global_step}: validation success (n, 95% CI) {summary}"
             + (
@@ -191,6 +208,23 @@ class SuccessRateCallback(Callback):
         self._log(trainer, figures, rollout_strip(results), video)
         self._last_step = trainer.global_step
         return figures
+
+    def _strict_counts(
+        self, pl_module: pl.LightningModule, results: list[EpisodeResult]
+    ) -> tuple[int, int] | None:
+        """(strict 6-DoF successes, episodes) of the episodes that ran, pooled over processes;
+        None where one that ran has no strict check (a missing check is no failure) or none ran."""
+        ran = [result for result in results if result.error is None]
+        judged = [result.strict_success for result in ran if result.strict_success is not None]
+        self.strict_metric = self.strict_metric.to(pl_module.device)
+        self.strict_metric.reset()
+        self.strict_metric.update(judged)
+        self.unjudged_count = self.unjudged_count.to(pl_module.device)
+        self.unjudged_count.reset()
+        self.unjudged_count.update(float(len(ran) - len(judged)))
+        successes, episodes = self.strict_metric.counts()  # collective calls: every process asks
+        unjudged = int(self.unjudged_count.compute())
+        return None if unjudged or not episodes else (successes, episodes)
 
     def _log(
         self,

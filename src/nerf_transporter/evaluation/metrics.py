@@ -83,12 +83,43 @@ class SuccessRate(Metric):
         return self.successes.float() / self.episodes.float()
 
 
+# the figures of the strict 6-DoF check in a summary (results file, cell)
+STRICT_FIGURES = ("strict_successes", "strict_success_rate", "strict_ci_low", "strict_ci_high")
+
+
+def strict_counts(episodes: Iterable[Mapping[str, Any]]) -> tuple[int, int] | None:
+    """(strict successes, episodes) of the episode records that ran, by their `strict_success`
+    (the project's stricter 6-DoF check); None where one that ran has none (a record written
+    before it was recorded), so that a missing check never counts as a failure."""
+    ran = [record for record in episodes if record.get("error") is None]
+    if any(record.get("strict_success") is None for record in ran):
+        return None
+    return sum(bool(record["strict_success"]) for record in ran), len(ran)
+
+
+def strict_summary(episodes: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
+    """`strict_successes`, `strict_success_rate` and its 95% Wilson interval (`strict_ci_low`,
+    `strict_ci_high`) over the episodes that ran; all None where `strict_counts` is None."""
+    counts = strict_counts(episodes)
+    if counts is None:
+        return dict.fromkeys(STRICT_FIGURES)
+    successes, ran = counts
+    low, high = wilson_interval(successes, ran)
+    return {
+        "strict_successes": successes,
+        "strict_success_rate": successes / ran if ran else None,
+        "strict_ci_low": low,
+        "strict_ci_high": high,
+    }
+
+
 def summarize(episodes: Iterable[Mapping[str, Any]]) -> dict:
     """Figures of episode records (`EpisodeResult.to_json()`), as JSON-ready values.
 
     The rate and its 95% Wilson interval are over the episodes that ran (successes and failures);
     erred episodes are counted apart, with their seeds and reasons, and the tally of failure
-    reasons says why the robot missed.
+    reasons says why the robot missed. The same figures of the stricter 6-DoF check follow
+    (`strict_summary`: None where a record that ran lacks it).
     """
     episodes = list(episodes)
     ran = [record for record in episodes if record.get("error") is None]
@@ -102,6 +133,7 @@ def summarize(episodes: Iterable[Mapping[str, Any]]) -> dict:
         "ci_low": low,
         "ci_high": high,
         "confidence": 0.95,
+        **strict_summary(ran),
         "failures": dict(Counter(r["failure"] for r in ran if r.get("failure") is not None)),
         "errors": len(erred),
         "erred_seeds": sorted(int(record["seed"]) for record in erred),

@@ -8,6 +8,11 @@ validation and test success). Only tensors and plain values remain, so it loads 
 `torch.load(..., weights_only=True)`, with `lightning test --ckpt_path` and with
 `evaluation.checkpoints.load_checkpoint`. `pretrained/manifest.json` lists them with the same
 provenance.
+
+A shipped policy belongs to the world it was trained and tested in (`provenance.test.world`, the
+world fingerprint of `sim.fingerprint`): in another world its actions and its measured success mean
+nothing, so `try` refuses it by name (exit status 2), and `try --list` marks it, until it is
+re-shipped from a table measured in this world.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ from typing import Any
 import torch
 import yaml
 
-from nerf_transporter.atomic import write_file, write_json
+from nerf_transporter.atomic import unwritable_reason, write_file, write_json
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.evaluation.checkpoints import (
     config_callbacks,
@@ -41,6 +46,7 @@ from nerf_transporter.evaluation.rollout import (
 from nerf_transporter.evaluation.testing import checkpoint_step, results_record
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.pretrained import PRETRAINED_DIR
+from nerf_transporter.sim.fingerprint import world_fingerprint
 from nerf_transporter.splits import split_seed
 
 MANIFEST = "manifest.json"
@@ -73,14 +79,52 @@ def load_manifest(folder: Path = PRETRAINED_DIR) -> list[dict[str, Any]]:
         raise ValueError(f"{path} is not a manifest of pretrained policies: {error}") from error
 
 
-def find_policy(task: str, method: str, folder: Path = PRETRAINED_DIR) -> Path:
-    """The shipped policy for (task, method); a ValueError lists the shipped ones otherwise."""
+class ForeignWorldError(ValueError):
+    """A shipped policy was trained in another world than this package's."""
+
+
+def find_entry(task: str, method: str, folder: Path = PRETRAINED_DIR) -> dict[str, Any]:
+    """The manifest entry of the shipped policy for (task, method); a ValueError lists the shipped
+    ones otherwise."""
     entries = load_manifest(folder)
     for entry in entries:
         if entry["task"] == task and entry["method"] == method:
-            return folder / entry["file"]
+            return entry
     shipped = ", ".join(f"{e['task']}/{e['method']}" for e in entries) or "none"
     raise ValueError(f"no pretrained {method} policy for {task} is shipped (shipped: {shipped})")
+
+
+def find_policy(task: str, method: str, folder: Path = PRETRAINED_DIR) -> Path:
+    """The shipped policy for (task, method); a ValueError lists the shipped ones otherwise."""
+    return folder / find_entry(task, method, folder)["file"]
+
+
+def policy_world(entry: dict[str, Any]) -> str | None:
+    """The world fingerprint a shipped policy was trained and tested in (None: not recorded)."""
+    return (entry.get("test") or {}).get("world")
+
+
+def foreign_world_text(entry: dict[str, Any], world: str) -> str:
+    """Why the shipped policy of `entry` is not run in `world`, and what to do instead."""
+    name = f"{entry['task']}/{entry['method']} ({entry['file']})"
+    trained = policy_world(entry) or "unrecorded"
+    commit = str(entry.get("commit") or "")[:7]
+    return (
+        f"the shipped policy {name} was trained in world {trained}, and this package's world is "
+        f"{world}: its actions and its measured success belong to that other world, so it is not "
+        "run here. The shipped policies are re-shipped from the results table measured in this "
+        "world; until then, train one here (`nerf-transporter run-cell --task "
+        f"{entry['task']} --method {entry['method']}`, then `nerf-transporter export-pretrained`)"
+        + (f", or try this one at its own commit (`git checkout {commit}`)" if commit else "")
+    )
+
+
+def check_world(entry: dict[str, Any], world: str | None = None) -> None:
+    """Raise a ForeignWorldError naming the policy where it was trained in another world than
+    `world` (default: this package's)."""
+    world = world_fingerprint() if world is None else world
+    if policy_world(entry) != world:
+        raise ForeignWorldError(foreign_world_text(entry, world))
 
 
 def sha256(path: Path) -> str:
@@ -165,8 +209,11 @@ def try_policy(
     cache_dir: str | None = DEFAULT_CACHE_DIR,
     workers: int | None = None,
 ) -> dict[str, Any]:
-    """Evaluate a shipped policy on the first `episodes` test seeds; a results record."""
-    path = find_policy(task, method, folder)
+    """Evaluate a shipped policy on the first `episodes` test seeds; a results record. A policy
+    trained in another world is refused (ForeignWorldError, naming it)."""
+    entry = find_entry(task, method, folder)
+    check_world(entry)
+    path = folder / entry["file"]
     model, datamodule = load_checkpoint(path, torch.device("cpu"))
     spec = EvaluationSpec.from_datamodule(datamodule, split="test", cache_dir=cache_dir)
     seeds = [split_seed("test", index) for index in range(episodes)]
@@ -207,6 +254,22 @@ def shipped_table(entries: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def foreign_world_note(entries: list[dict[str, Any]], world: str) -> str | None:
+    """The shipped policies trained in another world than `world`, one line each, under a
+    headline; None where all were trained in it."""
+    foreign = [entry for entry in entries if policy_world(entry) != world]
+    if not foreign:
+        return None
+    lines = [
+        f"- {e['task']}/{e['method']} ({e['file']}): world {policy_world(e) or 'unrecorded'}"
+        for e in foreign
+    ]
+    return (
+        f"From another world (this package's world is {world}; `try` refuses these until they "
+        "are re-shipped from the table measured in this world):\n" + "\n".join(lines)
+    )
+
+
 def try_main(argv: list[str] | None = None) -> int:
     """`nerf-transporter try`: a shipped policy on a few test episodes, with videos."""
     parser = argparse.ArgumentParser(
@@ -222,14 +285,28 @@ def try_main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--eval-workers", type=int, default=None, help="processes (default: one per core)"
     )
-    parser.add_argument("--list", action="store_true", help="list the shipped policies and stop")
+    parser.add_argument(
+        "--list",
+        action="store_true",
+        help="list the shipped policies (marking those from another world) and stop",
+    )
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error("--episodes must be >= 1")
+    reason = None if args.list else unwritable_reason(args.video)
+    if reason is not None:
+        print(
+            f"nerf-transporter try: --video {args.video} cannot be written ({reason})",
+            file=sys.stderr,
+        )
+        return 2
     try:
         entries = load_manifest()
         if args.list:
             print(shipped_table(entries))
+            note = foreign_world_note(entries, world_fingerprint())
+            if note is not None:
+                print(f"\n{note}")
             return 0
         record = try_policy(
             args.task, args.method, args.episodes, args.video, workers=args.eval_workers
@@ -240,7 +317,8 @@ def try_main(argv: list[str] | None = None) -> int:
     for result in record["episode_results"]:
         print(f"seed {result['seed']}: {EpisodeResult.from_json(result).outcome_text()}")
     print(f"{args.task} {args.method}: {cell(record)} in {record['wall_s']:.0f} s")
-    print(f"videos: {args.video}/")
+    videos = [result["video"] for result in record["episode_results"] if result.get("video")]
+    print(f"videos: {len(videos)} of {len(record['episode_results'])} episodes in {args.video}/")
     return 0
 
 

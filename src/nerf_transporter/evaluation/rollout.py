@@ -7,13 +7,18 @@ function of its seed, so `Evaluator.run(..., workers=N)` can share the episodes 
 processes, each with its own `Evaluator` and copy of the policy (`evaluation.workers`), with the
 results of a serial run.
 
-An episode ends in one of three outcomes. `success`: the task was achieved. `failure`: the robot
-acted and the task was not achieved (the object ended off its target pose, a pose was unreachable,
-or the simulator faulted during the robot's motion), with the reason. `error`: something that is
-not the robot's doing went wrong (imagery cache I/O, the imagery fit, resetting the simulator, the
-policy raising, out of memory); an erred episode says nothing about the policy, so success rates
-are computed over the episodes that ran, and errors are reported on their own. The environment that
-raised is rebuilt for the next episode and the run goes on.
+An episode ends in one of three outcomes. `success`: the task was achieved (the anchor's reward:
+what the table reports). `failure`: the robot acted and the task was not achieved (the object ended
+off its target pose, a pose was unreachable, or the simulator faulted during the robot's motion),
+with the reason. `error`: something that is not the robot's doing went wrong (imagery cache I/O,
+the imagery fit, resetting the simulator, the policy raising, out of memory); an erred episode says
+nothing about the policy, so success rates are computed over the episodes that ran, and errors are
+reported on their own. The environment that raised is rebuilt for the next episode and the run
+goes on.
+
+Beside `success`, an episode that ran records `strict_success`: the project's stricter 6-DoF check
+(`strict_errors` holds its errors; a simulator fault during the motion fails it too). An erred
+episode has none (None), nor has a record written before it was recorded.
 """
 
 from __future__ import annotations
@@ -152,8 +157,10 @@ class EpisodeResult:
     """Outcome of one episode. `failure`: why the robot did not achieve the task; `error`: what
     went wrong that was not the robot's doing (the episode then did not count); `pose_error`: how
     far the object ended from its target (the task's errors: position in metres, tilt and yaw in
-    radians); `video`: the episode's mp4, if recorded; `frames`: top-down colour before and after
-    the action, if recorded."""
+    radians); `strict_success`: the project's stricter 6-DoF check (None where the episode erred or
+    the environment did not judge it, as in records written before it was recorded), with its
+    errors in `strict_errors`; `video`: the episode's mp4, if recorded; `frames`: top-down colour
+    before and after the action, if recorded."""
 
     seed: int
     success: bool
@@ -163,6 +170,8 @@ class EpisodeResult:
     timings: dict[str, float] = field(default_factory=dict)
     imagery_cached: bool | None = None
     pose_error: dict[str, float] = field(default_factory=dict)
+    strict_success: bool | None = None
+    strict_errors: dict[str, float] = field(default_factory=dict)
     video: str | None = None
     frames: np.ndarray | None = None
 
@@ -195,6 +204,12 @@ class EpisodeResult:
         if self.failure == NOT_ACHIEVED and self.pose_error:
             return pose_error_text(self.pose_error)
         return self.failure
+
+
+def strict_outcome(info: dict) -> bool | None:
+    """The strict 6-DoF check of a step's info (`strict_success`), None where it has none."""
+    strict = info.get("strict_success")
+    return None if strict is None else bool(strict)
 
 
 def _action_record(action: dict) -> dict[str, list[float]]:
@@ -350,7 +365,7 @@ class Evaluator:
         timings: dict[str, float] = {}
         start = time.perf_counter()
         stage, rigs, cached, frames, action_record = "imagery cache", (), None, [], None
-        video, info = None, {}
+        video, info, strict_success = None, {}, None
         try:
             imagery = self._load_imagery(seed) if input_kind == "imagery" else None
             cached = imagery is not None if input_kind == "imagery" else None
@@ -385,6 +400,7 @@ class Evaluator:
             if record_frames:
                 frames.append(env.render_orthographic(0.0, 0.0)[0])
             success = bool(info["success"])
+            strict_success = strict_outcome(info)
             failure, error = None if success else (info.get("failure") or NOT_ACHIEVED), None
         except Exception as exception:
             if stage in ("reset", "observation", "step"):
@@ -398,7 +414,7 @@ class Evaluator:
                 stage,
                 exc_info=True,
             )
-            success = False
+            success, strict_success = False, False if robot_fault else None
             failure = f"simulator fault during the robot's motion ({text})" if robot_fault else None
             error = None if robot_fault else text
         timings["total_s"] = time.perf_counter() - start
@@ -411,6 +427,12 @@ class Evaluator:
             timings=timings,
             imagery_cached=cached,
             pose_error={k: float(info[k]) for k in POSE_ERROR_KEYS if info.get(k) is not None},
+            strict_success=strict_success,
+            strict_errors={
+                key: float(value)
+                for key, value in (info.get("strict_errors") or {}).items()
+                if value is not None
+            },
             frames=np.stack(frames) if record_frames and len(frames) == 2 else None,
         )
         if video is not None:

@@ -4,14 +4,15 @@ The DataModule's test dataloader yields episode seeds (`data.seeds.seed_loader`;
 process gets its share). `ClosedLoopTestCallback` collects them as the test loop hands them out
 and at the end of the epoch runs them with an `Evaluator` in the DataModule's `test_workers` worker
 processes (default: one per core available to this process), pools the outcomes (across DDP
-processes), logs `test/success_rate`, its 95% Wilson interval, the episode count and the erred
-episodes (`test/errors`, not counted in the rate), and writes `results-<checkpoint>.json` beside
-the checkpoint (`results-<checkpoint>-<setting>.json` when the DataModule's `test_setting` differs
-from its training `setting`; in the run folder for a policy shipped in the package). A results
-file is never replaced: testing the same checkpoint again writes `...-2.json`, and
-`nerf-transporter report` takes the newest. `lightning test` exits non-zero when any episode
-erred. The CLI adds the callback to every trainer it builds (also when a config lists its own
-callbacks); a Trainer built by hand needs it in its `callbacks`.
+processes), logs `test/success_rate`, its 95% Wilson interval, the episode count, the erred
+episodes (`test/errors`, not counted in the rate) and the rate of the stricter 6-DoF check
+(`test/strict_success_rate` and its interval; every episode record holds its `strict_success`),
+and writes `results-<checkpoint>.json` beside the checkpoint (`results-<checkpoint>-<setting>.json`
+when the DataModule's `test_setting` differs from its training `setting`; in the run folder for a
+policy shipped in the package). A results file is never replaced: testing the same checkpoint
+again writes `...-2.json`, and `nerf-transporter report` takes the newest. `lightning test` exits
+non-zero when any episode erred. The CLI adds the callback to every trainer it builds (also when a
+config lists its own callbacks); a Trainer built by hand needs it in its `callbacks`.
 
 Why a callback around Lightning's own test loop: judging a policy is evaluation's business, so the
 methods (`methods/base.py`) know nothing of it and import nothing from here. Lightning insists on
@@ -44,6 +45,9 @@ from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.pretrained import PRETRAINED_DIR
 from nerf_transporter.sim.fingerprint import world_fingerprint
+
+# the strict check's figures logged by `trainer.test` (test/<name>), where the episodes have it
+STRICT_LOGGED = ("strict_success_rate", "strict_ci_low", "strict_ci_high")
 
 
 def results_stem(
@@ -105,6 +109,17 @@ def checkpoint_step(path: str | os.PathLike) -> int:
 def method_name(module: torch.nn.Module) -> str:
     """The name of a method (`mira`, `transporter_se2`, ...: the class attribute `name`)."""
     return str(getattr(module, "name", type(module).__name__))
+
+
+def strict_cell(record: dict[str, Any]) -> str:
+    """The strict 6-DoF success of a results record as `cell` writes a rate, with its count."""
+    figures = {
+        "episodes": record["episodes"],
+        "successes": record["strict_successes"],
+        "ci_low": record["strict_ci_low"],
+        "ci_high": record["strict_ci_high"],
+    }
+    return f"{cell(figures)} - {record['strict_successes']} of {record['episodes']}"
 
 
 def erred_episodes_text(record: dict[str, Any]) -> str:
@@ -193,7 +208,7 @@ class ClosedLoopTestCallback(Callback):
             global_step=step,
             wall_s=time.perf_counter() - self._start,
         )
-        for name in ("success_rate", "ci_low", "ci_high", "episodes", "errors"):
+        for name in ("success_rate", "ci_low", "ci_high", "episodes", "errors", *STRICT_LOGGED):
             if record[name] is not None:  # rounded for Lightning's table; the file keeps all digits
                 pl_module.log(f"test/{name}", round(float(record[name]), 4))
         self.record = record
@@ -205,6 +220,8 @@ class ClosedLoopTestCallback(Callback):
             )
             path = write_new_json(directory, stem, record)
             print(f"test success: {cell(record)} - {record['successes']} of {record['episodes']}")
+            if record["strict_successes"] is not None:
+                print(f"strict 6-DoF success: {strict_cell(record)}")
             print(f"closed-loop test results written to {path}")
             if record["errors"]:
                 print(erred_episodes_text(record), file=sys.stderr)

@@ -25,6 +25,11 @@ import numpy as np
 from nerf_transporter.atomic import write_text
 from nerf_transporter.geometry import Pose
 
+# the anchor's contact parameters of every asset; PyBullet's own default lateral friction
+ROLLING_FRICTION = 1e-4
+INERTIA_SCALING = 3.0
+DEFAULT_FRICTION = 0.5
+
 RGBA = tuple[float, float, float, float]
 Vec3 = tuple[float, float, float]
 
@@ -174,6 +179,16 @@ def inertial_xml(mass: float, center_of_mass: Sequence[float], inertia: float = 
     )
 
 
+def contact_xml(friction: float) -> str:
+    """Contact block of every asset: its lateral friction, and the anchor's rolling friction and
+    inertia scaling (docs/conventions.md, "Physics")."""
+    return (
+        f'<contact><lateral_friction value="{friction:.6f}"/>'
+        f'<rolling_friction value="{ROLLING_FRICTION}"/>'
+        f'<inertia_scaling value="{INERTIA_SCALING}"/></contact>'
+    )
+
+
 def center_of_mass(parts: Sequence[Part]) -> np.ndarray:
     """Volume-weighted centroid of the parts that know their volume (origin if none do)."""
     weights = np.array([part.volume for part in parts], dtype=float)
@@ -190,8 +205,10 @@ def write_urdf(
     mass: float = 0.1,
     collision_parts: Sequence[Part] | None = None,
     com: Sequence[float] | None = None,
+    friction: float = DEFAULT_FRICTION,
 ) -> Path:
-    """A single-link URDF made of `parts` (visual and, unless `collision_parts` is given, collision).
+    """A single-link URDF made of `parts` (visual and, unless `collision_parts` is given, collision),
+    with lateral `friction` and the centre of mass at `com` (default: the collision parts' centroid).
 
     Several collision parts form one compound rigid body, which is how concave objects are built
     from convex pieces. `mass` 0 with `load(..., fixed=True)` gives a static body.
@@ -205,7 +222,7 @@ def write_urdf(
     body += "".join(f"\n{collision_xml(part)}" for part in collisions)
     text = (
         f'<?xml version="1.0"?>\n<robot name="{name}"><link name="base">'
-        f"{inertial_xml(mass, center)}{body}</link></robot>\n"
+        f"{contact_xml(friction)}{inertial_xml(mass, center)}{body}</link></robot>\n"
     )
     return cached_file(name, ".urdf", text)
 

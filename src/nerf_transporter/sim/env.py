@@ -14,7 +14,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -60,7 +60,10 @@ with native_output_silenced():
     from pybullet_utils.bullet_client import BulletClient
 
 RIGS = ("state", "rgbd", "nerf")
-TIME_STEP = 1.0 / 240.0
+TIME_STEP = 1.0 / 480.0  # the anchor's simulation rate
+TABLE_FRICTION = 1.0  # the anchor's ground plane
+SETTLED_SPEED = 0.005  # m/s: the scene has settled when every movable body is slower
+SETTLE_LIMIT = 5.0  # s of simulated time at most (the anchor's motion timeout)
 TABLE_SIZE = (1.6, 1.6, 0.02)
 VIDEO_EYE = np.array([0.55, -1.25, 0.75])
 VIDEO_TARGET = np.array([0.35, 0.0, 0.15])
@@ -99,6 +102,32 @@ def connect(render_mode: str | None = None) -> BulletClient:
             cameraTargetPosition=VIDEO_TARGET.tolist(),
         )
     return client
+
+
+def checked_action(action: object) -> tuple[geometry.Pose, geometry.Pose]:
+    """(pick, place) of a `step` action, each (position [3], quaternion [4]) as float arrays;
+    ValueError naming what is wrong otherwise (not a mapping, a pose missing or wrongly shaped).
+    Non-finite values pass: the motion fails on them, as on any pose the robot cannot reach."""
+    if not isinstance(action, Mapping) or not {"pick", "place"} <= set(action):
+        raise ValueError(
+            "an action is {'pick': pose, 'place': pose}, each pose (position [3], quaternion "
+            f"[4]); got {action!r:.80}"
+        )
+    poses = []
+    for key in ("pick", "place"):
+        try:
+            position, quaternion = (np.asarray(part, dtype=float) for part in action[key])
+        except (TypeError, ValueError) as error:
+            raise ValueError(
+                f"action[{key!r}] must be (position [3], quaternion [4]), got {action[key]!r:.80}"
+            ) from error
+        if (position.size, quaternion.size) != (3, 4):
+            raise ValueError(
+                f"action[{key!r}] must be (position [3], quaternion [4]), got shapes "
+                f"{position.shape} and {quaternion.shape}"
+            )
+        poses.append((position.reshape(3), quaternion.reshape(4)))
+    return poses[0], poses[1]
 
 
 def _pose_space() -> spaces.Tuple:
@@ -186,7 +215,11 @@ class RavensEnv(gym.Env):
         client.setGravity(0, 0, -9.8)
         client.setTimeStep(TIME_STEP)
         table = assets.write_urdf(
-            "table", [assets.Box(TABLE_SIZE)], color=assets.COLORS["table"], mass=0.0
+            "table",
+            [assets.Box(TABLE_SIZE)],
+            color=assets.COLORS["table"],
+            mass=0.0,
+            friction=TABLE_FRICTION,
         )
         self.table_id = assets.load(
             client,
@@ -203,13 +236,18 @@ class RavensEnv(gym.Env):
         return self._observation(), {"seed": seed}
 
     def step(self, action: dict) -> tuple[dict, float, bool, bool, dict]:
+        if not self.client.isConnected():
+            raise RuntimeError("step() after close(): make a new environment")
         if self.robot is None:
             raise RuntimeError("call reset() before step()")
+        pick, place = checked_action(action)
         self._clock = (time.perf_counter(), self._sim_steps)
-        failure = pick_and_place(self, action["pick"], action["place"])
+        failure = pick_and_place(self, pick, place)
         self.settle()
         self._steps += 1
         reward, info = self.task.reward(self)
+        if failure is not None:  # the anchor's timeout: a failed motion scores 0 whatever the pose
+            reward, info["success"], info["strict_success"] = 0.0, False, False
         # The task is over when solved or when its pick-and-places are used up (one for these tasks).
         terminated = bool(info["success"]) or self._steps >= self.task.max_steps
         info["failure"] = failure
@@ -249,15 +287,16 @@ class RavensEnv(gym.Env):
             and self.client.getDynamicsInfo(body, -1)[0] > 0
         )
 
-    def settle(self, max_steps: int = 480, check_every: int = 12) -> None:
-        """Step until every movable body is at rest (or `max_steps` passed)."""
+    def settle(self) -> None:
+        """Step until every movable body's linear speed is below `SETTLED_SPEED` (the anchor's
+        `is_static`, checked before every step), or for `SETTLE_LIMIT` seconds at most."""
         bodies = [self.client.getBodyUniqueId(k) for k in range(self.client.getNumBodies())]
         movable = [body for body in bodies if self.is_dynamic(body)]
-        for _ in range(0, max_steps, check_every):
-            self.step_simulation(check_every)
-            speeds = [self.client.getBaseVelocity(body) for body in movable]
-            if all(np.linalg.norm(v) < 2e-3 and np.linalg.norm(w) < 2e-2 for v, w in speeds):
+        for _ in range(int(round(SETTLE_LIMIT / TIME_STEP))):
+            speeds = [self.client.getBaseVelocity(body)[0] for body in movable]
+            if all(np.linalg.norm(v) < SETTLED_SPEED for v in speeds):
                 return
+            self.step_simulation()
 
     # -- observations ----------------------------------------------------------------------------
 

@@ -61,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"oracle: {error}", file=sys.stderr)
         return 2
     frames: list[np.ndarray] = []
-    successes = 0
+    successes = strict_successes = 0
     with progress_bar(args.episodes, f"{args.task}-{args.setting}") as progress:
         for index in range(args.episodes):
             seed = args.seed + index
@@ -73,9 +73,11 @@ def main(argv: list[str] | None = None) -> int:
             _, reward, _, _, info = env.step(env.task.oracle(env))
             env.frame_callback = None
             successes += int(info["success"])
+            strict_successes += int(info["strict_success"])
             progress.set_postfix(success_rate=f"{successes / (index + 1):.2f}")
             tqdm.write(
                 f"episode {index} seed {seed}: success={info['success']} reward={reward:.0f} "
+                f"strict_success={info['strict_success']} "
                 f"position_error_mm={1000 * info.get('position_error', float('nan')):.1f} "
                 f"failure={info['failure']}",
                 file=sys.stdout,
@@ -91,11 +93,16 @@ def main(argv: list[str] | None = None) -> int:
         "episodes": args.episodes,
         "successes": successes,
         "success_rate": successes / args.episodes,
+        "strict_successes": strict_successes,
+        "strict_success_rate": strict_successes / args.episodes,
     }
     if args.json:
         print(json.dumps(summary))
     else:
-        print(f"{args.task} {args.setting}: {successes}/{args.episodes} successful")
+        print(
+            f"{args.task} {args.setting}: {successes}/{args.episodes} successful "
+            f"({strict_successes}/{args.episodes} by the strict 6-DoF check)"
+        )
     return 0
 
 

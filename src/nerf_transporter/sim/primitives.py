@@ -1,29 +1,38 @@
 """The pick-and-place motion primitive with a 6-DoF approach along each pose's z axis.
 
-Pick: move above the pick pose (APPROACH metres along its z axis), descend along -z until the suction
-tip touches something, grasp, lift back. Place: move to APPROACH metres along the place pose's z
-axis, descend until the held object touches something (or the tip passes the place pose by
-OVERSHOOT), release, retreat, return home. Every failure is returned as a reason string.
+The anchor's `PickPlace`. Pick: move above the pick pose (APPROACH metres along its z axis), descend
+along -z until the suction tip touches something, grasp, lift back. Place: move to APPROACH metres
+along the place pose's z axis, descend along it until the held object touches something, release at
+once, retreat, return home. A descent has no lower limit at the pose: it goes on until contact, for
+DESCENT_LIMIT metres past the pose at most (by then the table stops any descent). The place pose
+therefore only sets the line of the descent. Every failure is returned as a reason string.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
 from nerf_transporter import geometry
 from nerf_transporter.geometry import Pose
-from nerf_transporter.sim.robot import HOME_JOINTS
-
-if TYPE_CHECKING:
-    from nerf_transporter.sim.env import RavensEnv
+from nerf_transporter.sim.robot import HOME_JOINTS, Robot
 
 APPROACH = 0.32  # m, distance of the pre-pick / pre-place pose along the pose's z axis
-OVERSHOOT = 0.02  # m the tip may go past the pick or place pose before the motion times out
-LINEAR_STEP = 0.002  # m per simulation step during straight-line motions
+DESCENT_LIMIT = APPROACH  # m a descent may go past the pick or place pose before it times out
+LINEAR_STEP = 0.001  # m per simulation step during straight-line motions (the anchor's 1 mm)
 IK_SPACING = 0.01  # m between inverse-kinematics waypoints of a straight-line motion
-JOINT_STEP = 0.02  # rad per simulation step during joint-space motions
+JOINT_STEP = 0.01  # rad (norm over the joints) per simulation step: the anchor's `movej` speed
+
+
+class Simulation(Protocol):
+    """What a motion needs of the environment: the arm, a physics step and which bodies move."""
+
+    robot: Robot
+
+    def step_simulation(self, count: int = 1) -> None: ...
+
+    def is_dynamic(self, body: int) -> bool: ...
 
 
 class MotionFailure(Exception):
@@ -37,23 +46,23 @@ def offset_along_z(pose: Pose, distance: float) -> Pose:
     return np.asarray(position, dtype=float) + distance * axis, np.asarray(quat, dtype=float)
 
 
-def _solve(env: RavensEnv, pose: Pose, what: str, seed: np.ndarray | None = None) -> np.ndarray:
+def _solve(env: Simulation, pose: Pose, what: str, seed: np.ndarray | None = None) -> np.ndarray:
     q = env.robot.solve_ik(pose, seed)
     if q is None:
         raise MotionFailure(f"unreachable: {what}")
     return q
 
 
-def move_joints(env: RavensEnv, target: np.ndarray) -> None:
+def move_joints(env: Simulation, target: np.ndarray) -> None:
     """Joint-space interpolation from the current joints to `target`."""
     start = env.robot.joint_positions()
-    count = max(1, int(np.ceil(np.abs(target - start).max() / JOINT_STEP)))
+    count = max(1, int(np.ceil(np.linalg.norm(target - start) / JOINT_STEP)))
     for k in range(1, count + 1):
         env.robot.drive(start + (target - start) * k / count)
         env.step_simulation()
 
 
-def move_linear(env: RavensEnv, start: Pose, end: Pose, what: str, stop=None) -> bool:
+def move_linear(env: Simulation, start: Pose, end: Pose, what: str, stop=None) -> bool:
     """Straight-line motion of the tip from `start` to `end` (orientation of `end`); returns True
     when `stop()` became true on the way (the motion then ends there). Inverse kinematics is solved
     every IK_SPACING metres and joint-interpolated in between (sub-millimetre deviation)."""
@@ -77,7 +86,7 @@ def move_linear(env: RavensEnv, start: Pose, end: Pose, what: str, stop=None) ->
     return False
 
 
-def pick_and_place(env: RavensEnv, pick: Pose, place: Pose) -> str | None:
+def pick_and_place(env: Simulation, pick: Pose, place: Pose) -> str | None:
     """Execute one pick and place; returns None on completion or the reason it failed."""
     try:
         _pick_and_place(env, _normalised(pick), _normalised(place))
@@ -96,7 +105,7 @@ def _normalised(pose: Pose) -> Pose:
     return position, quat / norm
 
 
-def _pick_and_place(env: RavensEnv, pick: Pose, place: Pose) -> None:
+def _pick_and_place(env: Simulation, pick: Pose, place: Pose) -> None:
     robot = env.robot
     pre_pick, pre_place = offset_along_z(pick, APPROACH), offset_along_z(place, APPROACH)
     checks = {
@@ -110,7 +119,7 @@ def _pick_and_place(env: RavensEnv, pick: Pose, place: Pose) -> None:
 
     move_joints(env, _solve(env, pre_pick, "pre-pick pose", HOME_JOINTS))
     if not move_linear(
-        env, pre_pick, offset_along_z(pick, -OVERSHOOT), "pick descent", robot.touching
+        env, pre_pick, offset_along_z(pick, -DESCENT_LIMIT), "pick descent", robot.touching
     ):
         raise MotionFailure("timeout: no contact while descending to the pick pose")
     graspable = [body for body in robot.touching() if env.is_dynamic(body)]
@@ -120,9 +129,10 @@ def _pick_and_place(env: RavensEnv, pick: Pose, place: Pose) -> None:
     move_linear(env, robot.tip_pose(), pre_pick, "lift")
 
     move_joints(env, _solve(env, pre_place, "pre-place pose", HOME_JOINTS))
-    move_linear(
-        env, pre_place, offset_along_z(place, -OVERSHOOT), "place descent", robot.held_touching
-    )
+    if not move_linear(
+        env, pre_place, offset_along_z(place, -DESCENT_LIMIT), "place descent", robot.held_touching
+    ):
+        raise MotionFailure("timeout: the held object touched nothing while descending to place")
     robot.release()
     move_linear(env, robot.tip_pose(), pre_place, "retreat")
     move_joints(env, HOME_JOINTS)

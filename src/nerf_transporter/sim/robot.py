@@ -1,7 +1,8 @@
 """UR5e arm with a suction tool, generated from the public Denavit-Hartenberg parameters.
 
 The arm is position-driven (kinematic): joint states are set along a path and the simulator steps
-between waypoints, so held and touched objects still follow physics. Only the suction tip collides;
+between waypoints. A held object hangs on the suction tip by a fixed constraint and stays a dynamic
+body (it keeps its momentum and can swing or tip against contacts), as the anchor's suction. Only the suction tip collides;
 the other links are visual. The suction tip frame is the action frame: its z axis points away from
 the object (an upright frame approaches from straight above).
 """
@@ -196,7 +197,6 @@ class Robot:
                 client.setCollisionFilterGroupMask(self.id, link, 0, 0)
         self.grasp_constraint: int | None = None
         self.held_body: int | None = None
-        self.grasp_offset: Pose = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
         self.set_joints(HOME_JOINTS)
 
     # -- kinematics ------------------------------------------------------------------------------
@@ -209,7 +209,8 @@ class Robot:
             self.client.resetJointState(self.id, joint, float(value), 0.0)
 
     def drive(self, q: np.ndarray) -> None:
-        """Put the arm at `q` (motors hold it there) and carry the held object along."""
+        """Put the arm at `q` (motors hold it there); the suction constraint carries the held
+        object."""
         self.set_joints(q)
         self.client.setJointMotorControlArray(
             self.id,
@@ -218,10 +219,6 @@ class Robot:
             targetPositions=list(q),
             forces=[500.0] * 6,
         )
-        if self.held_body is not None:
-            position, quat = self.client.multiplyTransforms(*self.tip_pose(), *self.grasp_offset)
-            self.client.resetBasePositionAndOrientation(self.held_body, position, quat)
-            self.client.resetBaseVelocity(self.held_body, (0, 0, 0), (0, 0, 0))
 
     def tip_pose(self) -> Pose:
         state = self.client.getLinkState(self.id, self.tip_link, computeForwardKinematics=True)
@@ -273,10 +270,8 @@ class Robot:
             parentFrameOrientation=local_quat,
             childFrameOrientation=(0, 0, 0, 1),
         )
-        self.client.changeConstraint(self.grasp_constraint, maxForce=1000)
         self.client.setCollisionFilterPair(self.id, body, self.tip_link, -1, 0)
         self.held_body = body
-        self.grasp_offset = (np.array(local_pos), np.array(local_quat))
 
     def release(self) -> None:
         """Remove the suction constraint (no-op when nothing is held)."""

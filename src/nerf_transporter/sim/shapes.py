@@ -1,13 +1,13 @@
 """Procedural solids of the bowl, hanging-disk and stacking-kit tasks, as lists of convex pieces.
 
 PyBullet collides a body made of several convex collision shapes as a compound, which is how the
-concave solids here (bowls, a disk with a hole, a kit plate with a cavity, star- and letter-shaped
-kit objects) stay robust in contact. Each piece is an (K, 3) array of points whose convex hull is
+concave solids here (bowls, a disk with a hole, star- and letter-shaped kit objects) stay robust
+in contact. Each piece is an (K, 3) array of points whose convex hull is
 the piece; `hull_mesh` turns it into a closed triangle mesh.
 
 Every kit shape is a polygon that is star-shaped about its own origin (every edge seen
-counter-clockwise from the origin), so that the fan from the origin cuts both the shape and the
-plate around its cavity into convex pieces. The train/test split of the shapes is fixed here.
+counter-clockwise from the origin), so that the fan from the origin cuts it into convex pieces.
+The train/test split of the shapes is fixed here.
 """
 
 from __future__ import annotations
@@ -18,34 +18,54 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull
 
-from nerf_transporter.sim.assets import RGBA, Mesh, write_obj, write_urdf
+from nerf_transporter.sim.assets import RGBA, Box, Cylinder, Mesh, Part, write_obj, write_urdf
 
 # ---------------------------------------------------------------------------------------------
 # Dimensions (metres)
 # ---------------------------------------------------------------------------------------------
 
-CUBE_SIZE = 0.04
+CUBE_SIZE = 0.04  # edge of place-red-in-green's red block (the anchor's stacking/block.urdf)
 
-BOWL_FLOOR_RADIUS = 0.04
-BOWL_RIM_RADIUS = 0.062
-BOWL_HEIGHT = 0.05
-BOWL_THICKNESS = 0.006
-BOWL_SEGMENTS = 16
+# place-red-in-green's bowl: the anchor's bowl/bowl.urdf collides as a cup mesh scaled (1, 1, 0.4),
+# a convex decomposition (the figures below are read from that mesh, as PyBullet's Cup/cup_vhacd.obj
+# holds it): a solid foot, then a straight wall around a cylindrical cavity
+BOWL_RIM_RADIUS = 0.047  # outer radius of the wall: the mesh is 9.2 cm across in x, 9.4 cm in y
+BOWL_INNER_RADIUS = 0.031  # the cavity's radius: the mesh's inner wall faces lie 2.6-3.5 cm out
+BOWL_FOOT_RADIUS = 0.037  # the foot under the cavity floor: the mesh's base is about 7.4 cm across
+BOWL_FLOOR_HEIGHT = 0.0145  # top of the cavity floor above the underside: the mesh's 1.1-1.6 cm
+BOWL_HEIGHT = 0.056  # the rim above the underside: the mesh is 0.14 tall, scaled 0.4 in z
+# the bowl's axis in its body frame: the mesh is centred 2.15 cm off its origin, whose plane is its
+# underside (the mesh spans x -0.066..0.026, y -0.040..0.054, z -0.0003..0.056 after scaling)
+BOWL_AXIS = (-0.0203, 0.0071)
+BOWL_SEGMENTS = 16  # sides of the foot's and wall's polygons (ours; the mesh: 10 wall pieces)
+BOWL_MASS = 0.1  # kg, the anchor's (the distractor bowls move; a fixed body ignores it)
+BOWL_FRICTION = 1.0  # lateral, the anchor's
+BOWL_CENTER_OF_MASS = (-0.01, 0.0, 0.02)  # the anchor's inertial origin in the body frame
 
-DISK_RADIUS = 0.04
-DISK_HOLE_RADIUS = 0.013
-DISK_THICKNESS = 0.012
-DISK_SEGMENTS = 16
-STAND_RADIUS = 0.056
-STAND_THICKNESS = 0.01
-ROD_RADIUS = 0.006
-ROD_LENGTH = 0.032
+# hanging-disks (the anchor's hanging_disks/disk.urdf and stand.urdf)
+DISK_RADIUS = 0.045  # outer radius: the anchor's ring mesh scaled 0.0015 in x and y
+DISK_HOLE_RADIUS = 0.0225  # the anchor's hole, same scale
+DISK_THICKNESS = 0.01  # the anchor's mesh scaled 0.001 in z; origin at mid-thickness (our choice)
+DISK_SEGMENTS = 16  # sides of the ring's polygons, vertices on both radii (ours: no figure)
+DISK_MASS = 0.1  # kg, the anchor's
+DISK_FRICTION = 1.0  # lateral, the anchor's
+STAND_PLATE_SIZE = (0.1, 0.1, 0.01)  # the anchor's collision box, centred on the stand's origin
+STAND_BOX_SIZE = (0.05, 0.05, 0.01)  # the anchor's visual box in the plate's place (all one sees)
+ROD_RADIUS = 0.005  # the anchor's cylinder
+ROD_LENGTH = 0.1  # the anchor's cylinder
+ROD_CENTRE_HEIGHT = 0.03  # the anchor's cylinder origin above the stand's; also its target offset
+STAND_MASS = 0.1  # kg, the anchor's (a fixed body: PyBullet ignores it)
+STAND_FRICTION = 0.5  # lateral, the anchor's
 
-KIT_THICKNESS = 0.016
-KIT_CAVITY_DEPTH = 0.01
-KIT_FLOOR_THICKNESS = 0.006
-KIT_CLEARANCE = 0.004
-KIT_BORDER = 0.018
+KIT_OBJECT_SIZE = 0.057  # longer side of a kit object's bounding box: the anchor's meshes span
+#   18.9-20 mesh units x scale 0.003 (ravens kitting/00.obj, 05.obj, 14.obj)
+KIT_OBJECT_THICKNESS = 0.02  # the anchor's meshes: z 0-20 units x scale 0.001, origin at the bottom
+KIT_OBJECT_MASS = 0.1  # the anchor's kitting/object-template.urdf
+KIT_OBJECT_FRICTION = 2.0  # lateral; the anchor's object-template.urdf (its copy on the kit too)
+KIT_TARGET_COLOR = (0.2, 0.2, 0.2, 1.0)  # the anchor's dark copy of the object on the kit
+KIT_PLATE_SIZE = (0.1, 0.1, 0.005)  # the anchor's kitting/kit_sixdof.urdf box
+KIT_PLATE_COLOR = (0.612, 0.459, 0.373, 1.0)  # kit_sixdof.urdf's rgba
+KIT_PLATE_FRICTION = 1.0  # lateral; kit_sixdof.urdf
 
 # ---------------------------------------------------------------------------------------------
 # 2-D polygons (counter-clockwise (N, 2) arrays)
@@ -97,36 +117,6 @@ def symmetry_order(outline: np.ndarray, max_order: int = 64, tol: float = 1e-6) 
     return best
 
 
-def offset_polygon(outline: np.ndarray, distance: float) -> np.ndarray:
-    """Grow a counter-clockwise polygon by `distance` (mitred corners: every edge moves out)."""
-    outline = np.asarray(outline, dtype=float)
-    edges = np.roll(outline, -1, axis=0) - outline
-    normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1)
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    before = np.roll(normals, 1, axis=0)  # normal of the edge ending at each vertex
-    miter = (before + normals) / (1.0 + (before * normals).sum(axis=1, keepdims=True))
-    return outline + distance * miter
-
-
-def clip_to_square(polygon: np.ndarray, half_size: float) -> np.ndarray:
-    """Sutherland-Hodgman clip of a convex polygon to the square [-h, h]^2."""
-    result = [np.asarray(p, dtype=float) for p in polygon]
-    for axis in (0, 1):
-        for sign in (1.0, -1.0):
-            inside = [sign * p[axis] <= half_size for p in result]
-            clipped = []
-            for index, point in enumerate(result):
-                nxt = result[(index + 1) % len(result)]
-                nxt_inside = inside[(index + 1) % len(result)]
-                if inside[index]:
-                    clipped.append(point)
-                if inside[index] != nxt_inside:
-                    t = (sign * half_size - point[axis]) / (nxt[axis] - point[axis])
-                    clipped.append(point + t * (nxt - point))
-            result = clipped
-    return np.array(result)
-
-
 def fan_pieces(outline: np.ndarray) -> list[np.ndarray]:
     """Convex pieces of a star-shaped polygon: fan triangles from the origin, greedily merged."""
     outline = np.asarray(outline, dtype=float)
@@ -146,18 +136,6 @@ def fan_pieces(outline: np.ndarray) -> list[np.ndarray]:
             pieces.append(np.vstack([origin, outline[current]]))
             current = [current[-1], index]
     pieces.append(np.vstack([origin, outline[current]]))
-    return pieces
-
-
-def frame_pieces(outline: np.ndarray, half_size: float) -> list[np.ndarray]:
-    """Convex pieces covering the square [-h, h]^2 minus a star-shaped polygon inside it."""
-    outline = np.asarray(outline, dtype=float)
-    far = 4.0 * half_size / np.linalg.norm(outline, axis=1).min()
-    pieces = []
-    for a, b in zip(outline, np.roll(outline, -1, axis=0), strict=True):
-        piece = clip_to_square(np.array([a, a * far, b * far, b]), half_size)
-        if len(piece) >= 3 and polygon_area(piece) > 1e-8:
-            pieces.append(piece)
     return pieces
 
 
@@ -215,7 +193,7 @@ class KitShape:
 
 def _heart(samples: int = 16) -> np.ndarray:
     t = np.linspace(0.0, 2 * math.pi, samples, endpoint=False)
-    t = np.delete(t, [1, samples - 1])  # keep the notch at the top wide enough for a cavity
+    t = np.delete(t, [1, samples - 1])  # a wide notch at the top
     x = 16 * np.sin(t) ** 3
     y = 13 * np.cos(t) - 5 * np.cos(2 * t) - 2 * np.cos(3 * t) - np.cos(4 * t)
     return _centred(np.stack([x, y], axis=1) * (4.3 / 17.0), (0.0, -0.2))
@@ -228,7 +206,7 @@ def _semicircle(radius: float = 4.4, samples: int = 16) -> np.ndarray:
 
 
 def _shape_outlines_cm() -> dict[str, np.ndarray]:
-    """Every kit outline in centimetres, about its own origin."""
+    """Every kit outline about its own origin, in centimetres (`_build_kit_shapes` scales it)."""
     return {
         "triangle": regular_polygon(3, 4.4, math.pi / 2),
         "square": regular_polygon(4, 4.1, math.pi / 4),
@@ -288,9 +266,12 @@ TEST_KIT_SHAPES = (
 
 
 def _build_kit_shapes() -> dict[str, KitShape]:
+    """Every outline scaled, about its origin, so that its bounding box's longer side is
+    `KIT_OBJECT_SIZE` (as the anchor's meshes are)."""
     shapes = {}
     for name, outline_cm in _shape_outlines_cm().items():
-        outline = np.asarray(outline_cm, dtype=float) * 0.01
+        outline = np.asarray(outline_cm, dtype=float)
+        outline = outline * (KIT_OBJECT_SIZE / np.ptp(outline, axis=0).max())
         if polygon_area(outline) < 0:
             outline = outline[::-1]
         shapes[name] = KitShape(name, outline, symmetry_order(outline))
@@ -358,23 +339,21 @@ def disc_piece(radius: float, z_low: float, z_high: float, segments: int = 24) -
 
 
 def bowl_pieces() -> list[np.ndarray]:
-    """Bowl with its origin at the centre of the underside: a floor disc and a flared wall."""
-    slope = math.atan2(BOWL_HEIGHT - BOWL_THICKNESS, BOWL_RIM_RADIUS - BOWL_FLOOR_RADIUS)
-    out = np.array([math.sin(slope), -math.cos(slope)]) * BOWL_THICKNESS  # (r, z) outward
-    inner_bottom = np.array([BOWL_FLOOR_RADIUS, BOWL_THICKNESS])
-    inner_top = np.array([BOWL_RIM_RADIUS, BOWL_HEIGHT])
-    profile = [inner_bottom, inner_top, inner_top + out, inner_bottom + out]
-    pieces = [disc_piece(BOWL_FLOOR_RADIUS + out[0], 0.0, BOWL_THICKNESS, BOWL_SEGMENTS)]
-    angles = 2 * math.pi * np.arange(BOWL_SEGMENTS + 1) / BOWL_SEGMENTS
-    for a0, a1 in zip(angles[:-1], angles[1:], strict=True):
-        points = [[r * math.cos(a), r * math.sin(a), z] for a in (a0, a1) for r, z in profile]
-        pieces.append(np.array(points))
-    return pieces
+    """Bowl with its origin in the plane of its underside, `BOWL_AXIS` off its axis: a solid foot
+    whose top is the cavity floor, and a straight wall around the cavity in `BOWL_SEGMENTS` blocks."""
+    foot = prism(regular_polygon(BOWL_SEGMENTS, BOWL_FOOT_RADIUS), 0.0, BOWL_FLOOR_HEIGHT)
+    inner, outer = (regular_polygon(BOWL_SEGMENTS, r) for r in (BOWL_INNER_RADIUS, BOWL_RIM_RADIUS))
+    wall = [
+        prism([inner[k], outer[k], outer[k - 1], inner[k - 1]], BOWL_FLOOR_HEIGHT, BOWL_HEIGHT)
+        for k in range(BOWL_SEGMENTS)
+    ]
+    axis = np.array([*BOWL_AXIS, 0.0])
+    return [piece + axis for piece in [foot, *wall]]
 
 
-def bowl_rest_height() -> float:
-    """Height above a bowl's origin of the centre of a cube resting on its floor."""
-    return BOWL_THICKNESS + CUBE_SIZE / 2
+def bowl_seat() -> np.ndarray:
+    """Where, in a bowl's frame, the centre of a cube resting on the middle of its floor lies."""
+    return np.array([*BOWL_AXIS, BOWL_FLOOR_HEIGHT + CUBE_SIZE / 2])
 
 
 def disk_pieces() -> list[np.ndarray]:
@@ -383,43 +362,32 @@ def disk_pieces() -> list[np.ndarray]:
     return ring_pieces(DISK_HOLE_RADIUS, DISK_RADIUS, -half, half, DISK_SEGMENTS)
 
 
-def stand_pieces() -> list[np.ndarray]:
-    """Stand with its origin at the centre of the plate's top face: a plate and a rod along +z."""
-    return [
-        disc_piece(STAND_RADIUS, -STAND_THICKNESS, 0.0),
-        disc_piece(ROD_RADIUS, -STAND_THICKNESS / 2, ROD_LENGTH, segments=12),
-    ]
+def stand_rod() -> Cylinder:
+    """The stand's rod along its z axis, through the plate (the anchor's cylinder)."""
+    return Cylinder(ROD_RADIUS, ROD_LENGTH, position=(0.0, 0.0, ROD_CENTRE_HEIGHT))
 
 
-def hanging_height() -> float:
-    """Height above the stand's origin of a hanging disk's centre."""
-    return DISK_THICKNESS / 2
+def stand_parts() -> tuple[list[Part], list[Part]]:
+    """(visual, collision) parts of the stand, origin at the centre of its plate: the anchor's
+    stand shows a 5 cm box where it collides as a 10 cm plate, and a rod sticking up from both."""
+    visual = [Box(STAND_BOX_SIZE), stand_rod()]
+    collision = [Box(STAND_PLATE_SIZE), stand_rod()]
+    return visual, collision
+
+
+def rod_tip_height() -> float:
+    """Height of the rod's tip above the stand's origin."""
+    return ROD_CENTRE_HEIGHT + ROD_LENGTH / 2
+
+
+def disk_rest_height() -> float:
+    """Height above the stand's origin of the centre of a disk lying on the plate."""
+    return STAND_PLATE_SIZE[2] / 2 + DISK_THICKNESS / 2
 
 
 def kit_object_pieces(shape: KitShape) -> list[np.ndarray]:
-    """Extruded kit object, origin at the outline's origin, mid-thickness."""
-    half = KIT_THICKNESS / 2
-    return [prism(piece, -half, half) for piece in fan_pieces(shape.outline)]
-
-
-def kit_half_size(shape: KitShape) -> float:
-    """Half side of the square kit plate that holds a shape."""
-    cavity = offset_polygon(shape.outline, KIT_CLEARANCE)
-    return float(np.abs(cavity).max()) + KIT_BORDER
-
-
-def kit_plate_pieces(shape: KitShape) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """(floor, rim) pieces of a kit plate whose origin is the centre of the cavity floor."""
-    half = kit_half_size(shape)
-    cavity = offset_polygon(shape.outline, KIT_CLEARANCE)
-    floor = [prism(regular_polygon(4, half * math.sqrt(2), math.pi / 4), -KIT_FLOOR_THICKNESS, 0)]
-    rim = [prism(piece, 0.0, KIT_CAVITY_DEPTH) for piece in frame_pieces(cavity, half)]
-    return floor, rim
-
-
-def kit_rest_height() -> float:
-    """Height above the kit plate's origin of a seated object's centre."""
-    return KIT_THICKNESS / 2
+    """Extruded kit object, origin at the outline's origin on its bottom face (the anchor's)."""
+    return [prism(piece, 0.0, KIT_OBJECT_THICKNESS) for piece in fan_pieces(shape.outline)]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -446,35 +414,59 @@ def merged_mesh(name: str, pieces: list[np.ndarray], color: RGBA | None = None) 
     return Mesh(str(write_obj(name, np.vstack(vertices), np.vstack(faces))), color=color)
 
 
-def write_solid(name: str, pieces: list[np.ndarray], color: RGBA, mass: float) -> str:
-    """URDF of a compound of convex pieces with its centre of mass at the body origin."""
+def write_solid(
+    name: str,
+    pieces: list[np.ndarray],
+    color: RGBA,
+    mass: float,
+    friction: float,
+    com: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> str:
+    """URDF of a compound of convex pieces (drawn as one merged mesh) with its centre of mass at
+    `com` (default the body origin, as the anchor's URDFs put it)."""
     visual = [merged_mesh(f"{name}-visual", pieces)]
     collision = mesh_parts(name, pieces)
-    path = write_urdf(name, visual, color, mass, collision_parts=collision, com=(0, 0, 0))
+    path = write_urdf(
+        name, visual, color, mass, collision_parts=collision, com=com, friction=friction
+    )
     return str(path)
 
 
 def bowl_urdf(color: RGBA) -> str:
-    return write_solid("bowl", bowl_pieces(), color, mass=0.0)
+    """The anchor's bowl: mass, friction and centre of mass its URDF's (the green ones are fixed)."""
+    return write_solid("bowl", bowl_pieces(), color, BOWL_MASS, BOWL_FRICTION, BOWL_CENTER_OF_MASS)
 
 
 def disk_urdf(color: RGBA) -> str:
-    return write_solid("disk", disk_pieces(), color, mass=0.05)
+    """The disk: a compound of convex ring blocks, so that its hole is a real hole."""
+    return write_solid("disk", disk_pieces(), color, DISK_MASS, DISK_FRICTION)
 
 
 def stand_urdf(color: RGBA) -> str:
-    return write_solid("stand", stand_pieces(), color, mass=0.0)
+    """The stand (load it fixed)."""
+    visual, collision = stand_parts()
+    path = write_urdf(
+        "stand",
+        visual,
+        color,
+        STAND_MASS,
+        collision_parts=collision,
+        com=(0, 0, 0),
+        friction=STAND_FRICTION,
+    )
+    return str(path)
 
 
 def kit_object_urdf(shape: KitShape, color: RGBA) -> str:
-    return write_solid(f"kit-{shape.name}", kit_object_pieces(shape), color, mass=0.05)
+    """A kit object with the anchor's mass and friction: movable, or loaded fixed as its copy."""
+    pieces = kit_object_pieces(shape)
+    return write_solid(f"kit-{shape.name}", pieces, color, KIT_OBJECT_MASS, KIT_OBJECT_FRICTION)
 
 
-def kit_plate_urdf(shape: KitShape, rim_color: RGBA, floor_color: RGBA) -> str:
-    """Fixed kit plate; the cavity floor has its own colour so the silhouette shows in RGB."""
-    floor, rim = kit_plate_pieces(shape)
-    name = f"kit-plate-{shape.name}"
-    visual = [merged_mesh(f"{name}-floor", floor, floor_color), merged_mesh(f"{name}-rim", rim)]
-    collision = mesh_parts(name, floor + rim)
-    path = write_urdf(name, visual, rim_color, 0.0, collision_parts=collision, com=(0, 0, 0))
+def kit_plate_urdf() -> str:
+    """The kit: a thin box with its origin at its centre (the anchor's kit_sixdof.urdf)."""
+    plate = [Box(KIT_PLATE_SIZE)]
+    path = write_urdf(
+        "kit-plate", plate, KIT_PLATE_COLOR, 0.0, com=(0, 0, 0), friction=KIT_PLATE_FRICTION
+    )
     return str(path)

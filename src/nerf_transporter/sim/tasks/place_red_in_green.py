@@ -1,4 +1,22 @@
-"""place-red-in-green: put the red cube into any of 1-3 tilted green bowls, among distractors."""
+"""place-red-in-green: put the red cube into any of 1-3 tilted green bowls, among ten distractors
+(the anchor's `PlaceRedInGreenSixDof`; Challenging its `PlaceRedInGreenSixDofOOD`).
+
+The scene is built in the anchor's order: the green bowls (fixed and tilted, origin 3 cm above the
+table at every tilt), the red cube (flat), then ten distractors (each a block or a bowl with equal
+chance, movable and flat). Every origin is drawn uniformly from the free workspace, half the
+diagonal of the anchor's size of the object away from what is already there and from the
+workspace's edge (the anchor erodes the free pixels by that diagonal).
+
+The bowl's body origin lies 2.15 cm off its axis (the anchor's mesh is off-centre), and success is
+the anchor's: the cube's origin within 5 cm in x-y of any green bowl's origin, at any orientation.
+The strict check asks for the cube seated in a bowl: its centre within 2.5 cm in 3-D of a cube
+resting on the middle of that bowl's floor; orientation free (any face of the cube may lie down).
+
+The oracle seats the cube there, in the nearest green bowl (the anchor's choice of bowl). The
+anchor's oracle aims at the bowl's origin instead: a cube centred there overhangs the cavity's
+wall, lands on the rim and stays there or wedges against it, never seated (measured here: the
+anchor's check then still passes on Normal tilts, but on under half of the Challenging ones).
+"""
 
 from __future__ import annotations
 
@@ -10,102 +28,163 @@ from nerf_transporter import geometry
 from nerf_transporter.geometry import Pose
 from nerf_transporter.sim import assets, shapes
 from nerf_transporter.sim.tasks.base import (
+    SUCTION_MARGIN,
+    MatchTolerance,
+    Scene,
     Task,
     Tolerance,
-    box_corners,
     flat_pose,
-    float_height,
+    placeable,
     sample_free_xy,
+    sampling_radius,
+    sampling_region,
 )
 
-MAX_GREEN_BOWLS = 3
-DISTRACTORS = 10
-DISTRACTOR_COLORS = ("blue", "yellow", "orange", "purple", "pink", "cyan", "brown", "white", "gray")
-TARGET_REGION = ((0.3, 0.68), (-0.38, 0.38))
-OBJECT_REGION = ((0.3, 0.7), (-0.4, 0.4))
-DISTRACTOR_REGION = ((0.28, 0.72), (-0.44, 0.44))
-GAP = 0.01  # free space kept between footprints (m)
+GREEN_BOWLS = (1, 3)  # the anchor draws 1 to 3 green bowls, uniformly
+DISTRACTORS = 10  # the anchor's
+BOWL_Z = 0.03  # m, a green bowl's origin height at every tilt (the anchor's size z 0 / 2 + 0.03)
+CUBE_MASS = 0.01  # kg (the anchor's stacking/block.urdf)
+CUBE_FRICTION = 1.0  # lateral (the anchor's)
+CUBE_CENTER_OF_MASS = (0.0, 0.0, 0.0)  # the anchor's URDF puts it at the link origin
 
+# the anchor's sizes for its free-space sampling (`get_random_pose`): an origin stays half their
+# diagonal away from every occupied pixel and from the edge of the workspace
+BOWL_SAMPLING_SIZE = (0.12, 0.12)
+CUBE_SAMPLING_SIZE = (shapes.CUBE_SIZE, shapes.CUBE_SIZE)
+BOWL_CLEARANCE = sampling_radius(BOWL_SAMPLING_SIZE)
+CUBE_CLEARANCE = sampling_radius(CUBE_SAMPLING_SIZE)
+BOWL_REGION = sampling_region(BOWL_SAMPLING_SIZE)
+CUBE_REGION = sampling_region(CUBE_SAMPLING_SIZE)
 
-def bowl_footprint() -> float:
-    """Radius of the disc a bowl covers on the table, whatever its tilt."""
-    return shapes.BOWL_RIM_RADIUS + shapes.BOWL_THICKNESS + GAP
-
-
-def cube_footprint() -> float:
-    return shapes.CUBE_SIZE / math.sqrt(2) + GAP
+# the anchor's palette in its order, less green for the distractor bowls and less red for the
+# distractor blocks; the k-th distractor takes the k-th colour of its kind (the anchor's rule)
+PALETTE = (
+    "blue",
+    "red",
+    "green",
+    "orange",
+    "yellow",
+    "purple",
+    "pink",
+    "cyan",
+    "brown",
+    "white",
+    "gray",
+)
+DISTRACTOR_BOWL_COLORS = tuple(color for color in PALETTE if color != "green")
+DISTRACTOR_BLOCK_COLORS = tuple(color for color in PALETTE if color != "red")
 
 
 def cube_urdf(color: str) -> str:
+    """The anchor's 4 cm block in `color`."""
     box = assets.Box((shapes.CUBE_SIZE,) * 3)
-    return str(assets.write_urdf("cube", [box], color=assets.COLORS[color], mass=0.05))
+    path = assets.write_urdf(
+        "cube",
+        [box],
+        color=assets.COLORS[color],
+        mass=CUBE_MASS,
+        com=CUBE_CENTER_OF_MASS,
+        friction=CUBE_FRICTION,
+    )
+    return str(path)
+
+
+def silhouette(pose: Pose, points: np.ndarray) -> tuple[np.ndarray, float]:
+    """(centre, radius) of an x-y disc holding `points` [N, 3] (body frame) of a body at `pose`."""
+    world = np.asarray(points) @ geometry.quat_to_matrix(pose[1]).T + np.asarray(pose[0])
+    low, high = world[:, :2].min(axis=0), world[:, :2].max(axis=0)
+    centre = (low + high) / 2
+    return centre, float(np.linalg.norm(world[:, :2] - centre, axis=1).max())
+
+
+def pick_points() -> np.ndarray:
+    """Points [9, 3], in the cube's frame, where the oracle may hold it: its top face's centre and
+    a ring around the part of the face inside the suction margin, whatever the cube's yaw."""
+    reach = (shapes.CUBE_SIZE / 2 - SUCTION_MARGIN) * math.sqrt(2)
+    angles = 2 * math.pi * np.arange(8) / 8
+    ring = reach * np.column_stack([np.cos(angles), np.sin(angles), np.zeros(8)])
+    return np.array([0.0, 0.0, shapes.CUBE_SIZE / 2]) + np.vstack([np.zeros(3), ring])
 
 
 class PlaceRedInGreen(Task):
     name = "place-red-in-green"
-    tolerance = Tolerance(position=0.05)
-    max_targets = MAX_GREEN_BOWLS
+    tolerance = MatchTolerance(position=0.05, yaw=None)  # the anchor's pos_eps, symmetry 0
+    # stricter: seated in the bowl in 3-D (the seat 2 cm out along the bowl's axis from its floor)
+    strict_tolerance = Tolerance(position=0.025)
+    max_targets = GREEN_BOWLS[1]
 
-    def build(self, env, rng: np.random.Generator) -> None:
-        client, taken = env.client, []
+    def build(self, env: Scene, rng: np.random.Generator) -> None:
         bowl_points = np.concatenate(shapes.bowl_pieces())
-        rest = (np.array([0.0, 0.0, shapes.bowl_rest_height()]), np.array([0.0, 0.0, 0.0, 1.0]))
+        seat = (shapes.bowl_seat(), np.array([0.0, 0.0, 0.0, 1.0]))
         green = shapes.bowl_urdf(assets.COLORS["green"])
-        half = shapes.CUBE_SIZE / 2
-        reach_points = box_corners((half, half, 0.0), (0.0, 0.0, shapes.bowl_rest_height() + half))[
-            ::2
-        ]
-        for _ in range(int(rng.integers(1, MAX_GREEN_BOWLS + 1))):
+        taken: list[tuple[np.ndarray, float]] = []  # x-y discs of the bodies loaded so far
+        for _ in range(int(rng.integers(GREEN_BOWLS[0], GREEN_BOWLS[1] + 1))):
             pose = self.sample_target_pose(
                 env,
                 rng,
-                TARGET_REGION,
-                bowl_points,
-                reach_points,
+                BOWL_REGION,
+                BOWL_Z,
+                shapes.bowl_seat() + pick_points(),  # the cube seated, in the bowl's frame
                 taken=taken,
-                footprint=bowl_footprint(),
+                footprint=BOWL_CLEARANCE,
             )
-            taken.append((pose[0], bowl_footprint()))
-            self.target_ids.append(assets.load(client, green, pose, fixed=True))
-            self.target_poses.append(geometry.multiply_poses(pose, rest))
+            taken.append(silhouette(pose, bowl_points))
+            self.target_ids.append(assets.load(env.client, green, pose, fixed=True))
+            self.target_poses.append(pose)
+            self.strict_target_poses.append(geometry.multiply_poses(pose, seat))
 
-        xy = sample_free_xy(rng, cube_footprint(), taken, OBJECT_REGION)
-        taken.append((xy, cube_footprint()))
-        pose = flat_pose(xy, shapes.CUBE_SIZE / 2, self.sample_yaw(rng))
-        self.object_id = assets.load(client, cube_urdf("red"), pose)
+        pose = self._pickable_cube_pose(env, rng, taken)
+        taken.append((pose[0][:2], shapes.CUBE_SIZE / math.sqrt(2)))
+        self.object_id = assets.load(env.client, cube_urdf("red"), pose)
         self._add_distractors(env, rng, taken, bowl_points)
 
-    def _add_distractors(self, env, rng, taken, bowl_points) -> None:
-        """Ten bowls or blocks in other colours; a bowl that finds no room becomes a block."""
-        for _ in range(DISTRACTORS):
-            color = DISTRACTOR_COLORS[rng.integers(len(DISTRACTOR_COLORS))]
-            as_bowl = rng.random() < 0.5
-            if as_bowl:
-                try:
-                    xy = sample_free_xy(
-                        rng, bowl_footprint(), taken, DISTRACTOR_REGION, attempts=200
-                    )
-                except RuntimeError:
-                    as_bowl = False
-            if as_bowl:
-                roll, pitch = self.sample_tilt(rng)
-                rotation = geometry.euler_to_matrix(roll, pitch, self.sample_yaw(rng))
-                position = np.array([*xy, float_height(bowl_points, rotation)])
-                pose = (position, geometry.matrix_to_quat(rotation))
-                body = assets.load(
-                    env.client, shapes.bowl_urdf(assets.COLORS[color]), pose, fixed=True
-                )
-                taken.append((xy, bowl_footprint()))
-            else:
-                xy = sample_free_xy(rng, cube_footprint(), taken, DISTRACTOR_REGION)
-                pose = flat_pose(xy, shapes.CUBE_SIZE / 2, self.sample_yaw(rng))
+    def _pickable_cube_pose(
+        self, env: Scene, rng: np.random.Generator, taken: list, attempts: int = 100
+    ) -> Pose:
+        """A flat cube pose in free space whose top face the arm reaches from above."""
+        half = shapes.CUBE_SIZE / 2
+        for _ in range(attempts):
+            xy = sample_free_xy(rng, CUBE_CLEARANCE, taken, CUBE_REGION)
+            pose = flat_pose(xy, half, self.sample_yaw(rng))
+            if placeable(env, pose, pick_points()):
+                return pose
+        raise RuntimeError(f"task {self.name!r}: no reachable spot for the cube")
+
+    def _add_distractors(
+        self, env: Scene, rng: np.random.Generator, taken: list, bowl_points: np.ndarray
+    ) -> None:
+        """Ten movable, flat bowls or blocks; a bowl that finds no room is drawn again (a block or
+        a bowl), as in the anchor."""
+        while len(self.distractor_ids) < DISTRACTORS:
+            index = len(self.distractor_ids)
+            is_block = rng.random() > 0.5  # the anchor's draw
+            clearance, region = (
+                (CUBE_CLEARANCE, CUBE_REGION) if is_block else (BOWL_CLEARANCE, BOWL_REGION)
+            )
+            try:
+                xy = sample_free_xy(rng, clearance, taken, region)
+            except RuntimeError:
+                if is_block:
+                    raise
+                continue
+            yaw = self.sample_yaw(rng)
+            if is_block:
+                pose = flat_pose(xy, shapes.CUBE_SIZE / 2, yaw)
+                color = DISTRACTOR_BLOCK_COLORS[index % len(DISTRACTOR_BLOCK_COLORS)]
                 body = assets.load(env.client, cube_urdf(color), pose)
-                taken.append((xy, cube_footprint()))
+                taken.append((xy, shapes.CUBE_SIZE / math.sqrt(2)))
+            else:
+                pose = flat_pose(xy, 0.0, yaw)
+                color = DISTRACTOR_BOWL_COLORS[index % len(DISTRACTOR_BOWL_COLORS)]
+                body = assets.load(env.client, shapes.bowl_urdf(assets.COLORS[color]), pose)
+                taken.append(silhouette(pose, bowl_points))
             self.distractor_ids.append(body)
 
-    def oracle_target(self, env, object_pose: Pose) -> Pose:
-        """A random green bowl; the cube keeps its yaw and takes the bowl's tilt."""
-        position, quat = self.target_poses[int(self._rng.integers(len(self.target_poses)))]
-        roll, pitch, _ = geometry.quat_to_euler(quat)
+    def oracle_target(self, env: Scene, object_pose: Pose) -> Pose:
+        """The cube seated in the nearest green bowl (the anchor's choice of bowl), keeping its yaw
+        and taking the bowl's tilt (the cube is square and the cavity round)."""
+        distances = [np.linalg.norm(pose[0] - object_pose[0]) for pose in self.target_poses]
+        nearest = int(np.argmin(distances))
+        roll, pitch, _ = geometry.quat_to_euler(self.target_poses[nearest][1])
         rotation = geometry.tilt_matrix(roll, pitch) @ geometry.quat_to_matrix(object_pose[1])
-        return position, geometry.matrix_to_quat(rotation)
+        return self.strict_target_poses[nearest][0], geometry.matrix_to_quat(rotation)
