@@ -5,7 +5,14 @@ import json
 
 import pytest
 
-from nerf_transporter.atomic import write_file, write_json, write_new_json, write_text
+from nerf_transporter import atomic
+from nerf_transporter.atomic import (
+    unwritable_reason,
+    write_file,
+    write_json,
+    write_new_json,
+    write_text,
+)
 
 
 def test_write_json_replaces_with_indented_json(tmp_path):
@@ -50,3 +57,19 @@ def test_written_files_get_the_mode_of_a_plain_open(tmp_path):
     plain.write_text("x")
     written = write_text(tmp_path / "atomic.txt", "x")
     assert written.stat().st_mode == plain.stat().st_mode
+
+
+def test_an_unwritable_folder_is_named_before_anything_is_written(tmp_path, monkeypatch):
+    assert unwritable_reason(tmp_path / "new" / "deeper") is None  # made as needed
+    (tmp_path / "file").write_text("")
+    assert (
+        unwritable_reason(tmp_path / "file" / "results") == f"{tmp_path / 'file'} is not a folder"
+    )
+
+    def read_only(*args, **kwargs):  # as a read-only folder answers (root writes anywhere)
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(atomic.tempfile, "TemporaryFile", read_only)
+    reason = unwritable_reason(tmp_path / "results")
+    assert reason == f"no file can be created in {tmp_path} (Permission denied)"
+    assert not (tmp_path / "new").exists() and not (tmp_path / "results").exists()

@@ -16,8 +16,10 @@ import yaml
 from nerf_transporter import cell as cell_module
 from nerf_transporter.atomic import write_new_json
 from nerf_transporter.cell import CellError, apply_budget, run_cell
+from nerf_transporter.evaluation.cells import find_records
 from nerf_transporter.evaluation.metrics import summarize
-from nerf_transporter.evaluation.report import load_results, results_table
+from nerf_transporter.evaluation.report import results_table
+from nerf_transporter.sim.fingerprint import world_fingerprint
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = {
@@ -64,7 +66,7 @@ class FakeLightning:
         self.calls, self.configs, self.interrupt_at = [], [], None
 
     def __call__(self, args):
-        config = yaml.safe_load(Path(args[args.index("--config") + 1]).read_text())
+        config = yaml.safe_load(args[args.index("--config") + 1])  # the config's YAML text
         resume = args[args.index("--ckpt_path") + 1] if "--ckpt_path" in args else None
         self.calls.append(resume)
         self.configs.append(config)
@@ -101,7 +103,7 @@ def fake_test(run_dir, split, episodes, *, only, errors=0, **kwargs):
         for result in results[:errors]:
             result |= {"success": False, "error": "ValueError: broken cache"}
         record = {"checkpoint": str(path), "global_step": step, "split": split, "setting": "normal"}
-        record |= {"world": "0123456789abcdef", **summarize(results), "episode_results": results}
+        record |= {"world": world_fingerprint(), **summarize(results), "episode_results": results}
         if split == "validation":
             write_new_json(run_dir / "evaluation", f"{path.stem}-{split}-normal", record)
         records.append(record)
@@ -146,9 +148,9 @@ def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol
     assert json.loads((run_dir / "fit-segments.json").read_text())[0]["wall_s"] is None
 
     fakes.interrupt_at = None
-    path, record = run()  # resumes the interrupted fit in its folder
-    assert path == cell and fakes.calls == [None, str(run_dir / "checkpoints" / "last.ckpt")]
-    assert sorted(p.name for p in runs.iterdir()) == ["version_0"]
+    path, record = run()  # resumes the interrupted fit in its folder, from its furthest step
+    assert path == cell and fakes.calls == [None, str(run_dir / "checkpoints" / "step000004.ckpt")]
+    assert sorted(p.name for p in runs.glob("version_*")) == ["version_0"]
     stored = json.loads(cell.read_text())
     assert stored == json.loads(json.dumps(record))
     assert stored["protocol"] == {
@@ -182,10 +184,10 @@ def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol
     assert stored["config"]["trainer"]["max_steps"] == 8
     assert stored["config"]["data"]["init_args"]["imagery"] == "oracle"
     assert len(stored["machine"]["fit"]) == 2 and stored["machine"]["test"]["cpu"]
-    assert stored["world"] == "0123456789abcdef" and stored["torch"] == torch.__version__
+    assert stored["world"] == world_fingerprint() and stored["torch"] == torch.__version__
     assert stored["train_wall_s"] >= 0 and stored["test_wall_s"] >= 0
     # the report reads the cell into its own row
-    header, rows = results_table(load_results([Path("results")]))
+    header, rows = results_table(find_records([Path("results")]).records)
     assert rows[2][:2] == ["mira, oracle imagery", "67% (3, 21-94)"]
 
     assert run() == (cell, None)  # measured: skipped, nothing fitted
@@ -266,6 +268,154 @@ def test_a_test_with_erred_episodes_writes_no_cell_and_is_tested_again(fakes, mo
     assert cell_module.main(argv) == 0
     assert len(fakes.calls) == 1  # the finished fit was kept, only the test ran again
     assert Path("results/block-insertion/transporter_se2.json").is_file()
+
+
+def test_a_cell_records_the_strict_check_beside_the_success_rate(fakes, monkeypatch):
+    def judged_test(run_dir, split, episodes, *, only, **kwargs):
+        """fake_test's episodes, the first of them alone passing the strict 6-DoF check."""
+        records = fake_test(run_dir, split, episodes, only=only, **kwargs)
+        for record in records:
+            for index, result in enumerate(record["episode_results"]):
+                result["strict_success"] = index == 0
+            record |= summarize(record["episode_results"])
+        return records
+
+    monkeypatch.setattr(cell_module, "evaluate_checkpoints", judged_test)
+    _, stored = run()
+    assert (stored["successes"], stored["strict_successes"], stored["episodes"]) == (2, 1, 3)
+    assert stored["strict_success_rate"] == pytest.approx(1 / 3)
+    assert stored["strict_ci_low"] < 1 / 3 < stored["strict_ci_high"]
+    assert [r["strict_success"] for r in stored["episode_results"]] == [True, False, False]
+
+
+def test_a_cell_of_records_without_the_strict_check_says_so_rather_than_zero(fakes):
+    _, stored = run()  # fake_test's records predate the strict check
+    strict = ("strict_successes", "strict_success_rate", "strict_ci_low", "strict_ci_high")
+    assert [stored[key] for key in strict] == [None] * 4
+    assert [r["strict_success"] for r in stored["episode_results"]] == [None] * 3
+
+
+def test_a_cell_of_another_world_or_with_wrong_numbers_is_not_taken_for_measured(fakes):
+    path, _ = run()
+    stored = json.loads(path.read_text())
+    path.write_text(json.dumps(stored | {"world": "deadbeefdeadbeef"}))
+    world = f"measured in world deadbeefdeadbeef.*, this checkout's world is {world_fingerprint()}"
+    with pytest.raises(CellError, match=world):
+        run()
+    path.write_text(json.dumps(stored | {"successes": 3}))
+    with pytest.raises(CellError, match="not the 95% Wilson interval of 3 of 3.*--force replaces"):
+        run()
+    assert len(fakes.calls) == 1
+
+
+CELL_ARGV = ["--task", "block-insertion", "--method", "mira", "--imagery", "oracle"]
+CELL_ARGV += ["--steps", "8", "--val-every", "2", "--val-episodes", "4", "--episodes", "3"]
+CELL_ARGV += ["--configs", str(REPO / "configs"), "--device", "cpu"]
+
+
+def test_a_second_run_cell_of_the_same_cell_exits_naming_the_first(fakes, monkeypatch, capsys):
+    second = []
+
+    def fit_while_another_starts(args):
+        if not second:  # the first fit: the same command starts again, as from another shell
+            second.append(None)
+            second[0] = cell_module.main(CELL_ARGV)
+        return fakes(args)
+
+    monkeypatch.setattr(cell_module, "build_cli", fit_while_another_starts)
+    assert cell_module.main(CELL_ARGV) == 0
+    assert second == [2] and len(fakes.calls) == 1
+    err = capsys.readouterr().err
+    assert f"this cell is being measured by run-cell, pid {os.getpid()}" in err
+    assert cell_module.main(CELL_ARGV) == 0 and "skipped" in capsys.readouterr().out
+
+
+def test_a_moved_run_folder_with_a_lagging_last_checkpoint_is_not_fitted_again(fakes):
+    """As Lightning leaves a fit resumed in a moved folder: `last.ckpt` at an earlier step, the
+    later steps' copy in `last-v1.ckpt`."""
+    run_dir, _ = run(fit_only=True)
+    moved = Path("moved/logs")
+    moved.parent.mkdir()
+    Path("logs").rename(moved)
+    checkpoints = moved.joinpath(*run_dir.parts[1:], "checkpoints")
+    (checkpoints / "last.ckpt").write_bytes((checkpoints / "step000004.ckpt").read_bytes())
+    (checkpoints / "last-v1.ckpt").write_bytes((checkpoints / "step000006.ckpt").read_bytes())
+    _, stored = run(logs=moved / "cells")
+    assert len(fakes.calls) == 1  # the finished fit is not trained again
+    assert stored["checkpoint"]["path"] == str(checkpoints / "step000006.ckpt")
+
+
+def test_a_partly_written_checkpoint_is_skipped_on_resume(fakes, caplog):
+    fakes.interrupt_at = 6
+    with pytest.raises(KeyboardInterrupt):
+        run()
+    (checkpoints,) = Path("logs/cells").rglob("checkpoints")
+    for name in ("last.ckpt", "step000006.ckpt"):  # a full disk cut them short
+        (checkpoints / name).write_bytes((checkpoints / name).read_bytes()[:100])
+    fakes.interrupt_at = None
+    _, stored = run()
+    assert fakes.calls[-1] == str(checkpoints / "step000004.ckpt")
+    assert "skipping unreadable checkpoint" in caplog.text and stored["checkpoint"]["step"] == 6
+
+
+def test_unwritable_folders_and_a_bad_lr_are_named_before_anything_runs(fakes):
+    Path("file").write_text("a file where a folder should be")
+    with pytest.raises(CellError, match=r"results folder file/block-insertion cannot be written"):
+        run(results=Path("file"))
+    with pytest.raises(CellError, match=r"fit runs folder file/cells/.* is not a folder"):
+        run(logs=Path("file/cells"))
+    Path("data").write_text("no folder: the imagery cache data/imagery-cache cannot be made")
+    with pytest.raises(CellError, match="the imagery cache folder data/imagery-cache cannot be"):
+        run()
+    Path("data").unlink()
+    for lr in (float("nan"), float("inf"), -1e-3):
+        with pytest.raises(CellError, match=f"lr must be > 0 and finite, got {lr}"):
+            run(lr=lr)
+    assert fakes.calls == [] and not Path("logs").exists()
+
+
+def test_a_finished_test_is_taken_again_when_only_the_cell_write_failed(fakes, monkeypatch):
+    tested, write_json = [], cell_module.write_json
+
+    def test_recorded(run_dir, split, episodes, *, only, **kwargs):
+        """fake_test, its test records written to the run's evaluation/ as the real one does."""
+        records = fake_test(run_dir, split, episodes, only=only, **kwargs)
+        for record in records if split == "test" else []:
+            tested.append(record["checkpoint"])
+            record |= {"method": "mira", "task": "block-insertion", "imagery": "oracle"}
+            record |= {"wall_s": 5.0}
+            write_new_json(run_dir / "evaluation", f"{only[0].stem}-test-normal", record)
+        return records
+
+    def full_disk(path, payload, **options):
+        if Path(path).parent == Path("results/block-insertion"):
+            raise OSError(28, "No space left on device")
+        return write_json(path, payload, **options)
+
+    monkeypatch.setattr(cell_module, "evaluate_checkpoints", test_recorded)
+    monkeypatch.setattr(cell_module, "write_json", full_disk)
+    with pytest.raises(CellError, match="No space left.*writes the cell without testing again"):
+        run()
+    monkeypatch.setattr(cell_module, "write_json", write_json)
+    _, stored = run()
+    assert len(tested) == 1 and len(fakes.calls) == 1 and stored["test_wall_s"] == 5.0
+    assert (stored["episodes"], stored["successes"]) == (3, 2)
+
+
+def test_a_fresh_fit_failing_before_a_checkpoint_leaves_no_run_folder_nor_config_file(
+    fakes, monkeypatch
+):
+    during = []
+
+    def out_of_memory(args):
+        during.extend(path.name for path in Path("logs").rglob("version_*/*"))
+        raise RuntimeError("CUDA out of memory")
+
+    monkeypatch.setattr(cell_module, "build_cli", out_of_memory)
+    with pytest.raises(RuntimeError, match="out of memory"):
+        run()
+    assert during == [cell_module.SEGMENTS]  # the config goes to the fit as text, not a file
+    assert not list(Path("logs").rglob("version_*"))
 
 
 def test_colour_augmentation_is_a_protocol_of_its_own_and_its_absence_changes_no_id():

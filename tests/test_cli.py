@@ -1,6 +1,7 @@
 import functools
 import http.server
 import json
+import logging
 import os
 import re
 import subprocess
@@ -256,8 +257,65 @@ def test_resume_takes_the_furthest_checkpoint_of_a_run_copied_with_one_time(tmp_
         torch.save({"global_step": step}, path)
         os.utime(path, (1.0e9, 1.0e9))
     assert latest_checkpoint(tmp_path / "runs") == folder / "step002000.ckpt"
-    torch.save({"global_step": 1700}, folder / "last.ckpt")
+    torch.save({"global_step": 1700}, folder / "last.ckpt")  # behind: its name does not win
+    assert latest_checkpoint(tmp_path / "runs") == folder / "step002000.ckpt"
+    torch.save({"global_step": 2100}, folder / "last.ckpt")
     assert latest_checkpoint(tmp_path / "runs") == folder / "last.ckpt"
+
+
+def test_resume_skips_a_partly_written_checkpoint_with_a_warning(tmp_path, caplog):
+    folder = tmp_path / "runs" / "version_0" / "checkpoints"
+    folder.mkdir(parents=True)
+    torch.save({"global_step": 2}, folder / "step000002.ckpt")
+    for name in ("step000003.ckpt", "last.ckpt"):  # cut short by a full disk
+        (folder / name).write_bytes(b"PK\x03\x04 cut short")
+    later = tmp_path / "runs" / "version_1" / "checkpoints"
+    later.mkdir(parents=True)
+    (later / "last.ckpt").write_bytes(b"")  # a later run with nothing readable
+    with caplog.at_level(logging.WARNING):
+        assert latest_checkpoint(tmp_path / "runs") == folder / "step000002.ckpt"
+    assert (
+        "skipping unreadable checkpoint" in caplog.text and str(folder / "last.ckpt") in caplog.text
+    )
+
+
+@pytest.mark.parametrize(
+    ("argv", "problem"),
+    [
+        (["test", "--ckpt_path", "a-folder"], "--ckpt_path a-folder is a folder, not a checkpoint"),
+        (["test", "--ckpt_path", "missing.ckpt"], "--ckpt_path missing.ckpt: no such checkpoint"),
+        (["test", "--ckpt_path", "cut.ckpt"], "--ckpt_path cut.ckpt is not a readable checkpoint"),
+        (
+            ["test", "--ckpt_path", "step2.ckpt", "--data.init_args.test_episodes", "0"],
+            "test_episodes 0: a test needs at least one episode",
+        ),
+        (
+            ["test", "--ckpt_path", "step2.ckpt", "--video", "a-file/videos"],
+            "--video a-file/videos cannot be written",
+        ),
+        (["fit", "--trainer.max_steps", "-5"], "max_steps -5: a fit needs at least one training"),
+        (["fit", "--trainer.max_steps", "0"], "max_steps 0: a fit needs at least one training"),
+    ],
+    ids=["folder", "missing", "truncated", "no-episodes", "video-unwritable", "steps-5", "steps0"],
+)
+def test_lightning_names_an_option_it_cannot_run_and_claims_no_run_folder(
+    tmp_path, capsys, argv, problem
+):
+    Path("a-folder").mkdir()
+    Path("a-file").write_text("a file where a folder should be")
+    Path("cut.ckpt").write_bytes(b"PK\x03\x04 cut short")
+    torch.save({"global_step": 2}, "step2.ckpt")
+    config = closed_loop_test_config(tmp_path)
+    assert lightning_main([argv[0], "--config", str(config), *argv[1:]]) == 2
+    assert problem in capsys.readouterr().err
+    assert not list(Path("logs").rglob("version_*"))
+
+
+def test_a_fit_that_fails_before_training_leaves_no_run_folder(tmp_path):
+    config = tiny_config(tmp_path / "tiny.yaml", batch_size=0)  # its DataLoader refuses it
+    with pytest.raises(ValueError, match="batch_size"):
+        lightning_main(["fit", "--config", str(config)])
+    assert not list(Path("logs").rglob("version_*"))
 
 
 def test_ckpt_path_last_without_a_run_is_a_named_error(tmp_path, capsys):

@@ -2,12 +2,8 @@
 
 from pathlib import Path
 
-from nerf_transporter.evaluation.report import (
-    load_results,
-    measured_cells,
-    readme_block,
-    replace_readme_block,
-)
+from nerf_transporter.evaluation.cells import find_records
+from nerf_transporter.evaluation.report import measured_cells, readme_block, replace_readme_block
 
 REPO = Path(__file__).resolve().parents[1]
 REGENERATE = (
@@ -17,9 +13,10 @@ REGENERATE = (
 
 
 def test_the_readme_results_section_matches_the_results_folder():
-    records = load_results([REPO / "results"])
+    found = find_records([REPO / "results"])
+    records = found.records
     readme = (REPO / "README.md").read_text()
-    expected = replace_readme_block(readme, readme_block(records))
+    expected = replace_readme_block(readme, readme_block(records, found.archives))
     assert readme == expected, f"README.md and results/ disagree: {REGENERATE}"
     if measured_cells(records):
         assert (REPO / "results" / "table1.png").is_file(), (

@@ -68,3 +68,19 @@ def write_new_json(directory: str | os.PathLike, stem: str, payload: Any) -> Pat
             return write_json(Path(directory) / name, payload, overwrite=False)
         except FileExistsError:
             number += 1
+
+
+def unwritable_reason(folder: str | os.PathLike) -> str | None:
+    """Why no file can be written into `folder` (created as needed), None where one can: its
+    nearest existing ancestor must be a folder a file can be created in (probed with one)."""
+    existing = Path(folder).absolute()
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        return f"{existing} is not a folder"
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as error:
+        return f"no file can be created in {existing} ({error.strerror or error})"
+    return None

@@ -12,10 +12,15 @@ A cell's protocol is everything that decides its number but the code: task, sett
 imagery, demonstrations, steps, batch size, learning rate, resolution, validation and test
 episodes, and the model's architecture (its other arguments, e.g. width and crop size, so that a
 `--config` overlay that widens the networks is another protocol). Each protocol fits in its own
-folder `<logs>/<column>/<row>/<protocol id>/version_N`, so a rerun resumes the latest run's last
-checkpoint, skips a finished fit, and skips a cell whose JSON holds the same protocol; `--force`
-measures it again from a fresh fit. A test with erred episodes writes no cell (its record stays
-in the run's `evaluation/`) and exits 1. `--fit-only` runs only the fit, without the closed-loop
+folder `<logs>/<column>/<row>/<protocol id>/version_N`, so a rerun resumes the latest run from its
+checkpoint of the highest step (wherever the folder was moved), never trains a finished fit again,
+and skips a cell whose JSON holds the same protocol (read by `evaluation/cells.py`: a cell of
+another world is an error); `--force` measures it again from a fresh fit. One command at a time
+works on a cell: it holds a lock in the protocol's folder, and a second one exits naming the
+first. Before anything runs, the folders it will write (fit runs, results, the imagery cache)
+are checked writable. A test with erred episodes writes no cell (its record stays in the run's
+`evaluation/`) and exits 1; a finished test whose cell could not be written is taken from there
+by the next run instead of testing again. `--fit-only` runs only the fit, without the closed-loop
 validation callback (a GPU machine without PyBullet); the same command without it, where PyBullet
 is, validates the unscored checkpoints closed loop, picks the best and tests it. This module drives
 `lightning fit`, so it sits beside the CLI, above the evaluation layer.
@@ -24,15 +29,20 @@ is, validates the unscored checkpoints closed loop, picks the best and tests it.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
+import fcntl
 import hashlib
 import json
 import logging
+import math
+import os
+import socket
 import subprocess
 import sys
-import tempfile
 import time
 import warnings
+from collections.abc import Iterator
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -40,10 +50,23 @@ from typing import Any
 import torch
 import yaml
 
-from nerf_transporter.atomic import write_json
-from nerf_transporter.cli import NoRunToResumeError, build_cli, claim_version, latest_checkpoint
+from nerf_transporter.atomic import unwritable_reason, write_json
+from nerf_transporter.cli import (
+    NoRunToResumeError,
+    build_cli,
+    claim_version,
+    latest_checkpoint,
+    removed_if_unused,
+)
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.device_info import describe_device
+from nerf_transporter.evaluation.cells import (
+    CellFileError,
+    column_folder,
+    load_cell,
+    load_record,
+    row_key,
+)
 from nerf_transporter.evaluation.checkpoints import (
     best_record,
     checkpoint_steps,
@@ -51,14 +74,17 @@ from nerf_transporter.evaluation.checkpoints import (
     evaluate_checkpoints,
     validation_records,
 )
-from nerf_transporter.evaluation.report import TASKS, cell, column_folder, row_key
+from nerf_transporter.evaluation.report import TASKS, cell
+from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR
 from nerf_transporter.evaluation.testing import checkpoint_step, erred_episodes_text
 from nerf_transporter.methods import METHODS
+from nerf_transporter.splits import split_seed
 
 CALLBACK = "SuccessRateCallback"
 CHECKPOINT = "ModelCheckpoint"
 MONITOR = "eval/success_rate"
 SEGMENTS = "fit-segments.json"  # in a run folder: one entry per fit started there
+LOCK = ".run-cell.lock"  # in a protocol's folder: held by the one run-cell working on that cell
 LOGGER = "lightning.pytorch.loggers.TensorBoardLogger"
 # model arguments outside the protocol's "model" entry (the architecture): lr, pixel_size and
 # n_rotations are protocol keys of their own; view_chunk (memory), log_images_every_n_steps
@@ -162,8 +188,8 @@ def apply_budget(
     ]
     for section, key, value in updates:
         if value is not None:
-            if not isinstance(value, str) and value <= 0:
-                raise CellError(f"{key} must be > 0, got {value}")
+            if not isinstance(value, str) and not (math.isfinite(value) and value > 0):
+                raise CellError(f"{key} must be > 0 and finite, got {value}")
             section[key] = value
     every, steps = validation.get("every_n_steps"), trainer.get("max_steps")
     if checkpoint.get("every_n_train_steps") != every:
@@ -252,9 +278,9 @@ def measured(path: Path, protocol: dict[str, Any], input_kind: str) -> bool:
     if not path.exists():
         return False
     try:
-        stored = stored_protocol(json.loads(path.read_text()), input_kind)
-    except (OSError, ValueError, KeyError, TypeError) as error:
-        raise CellError(f"unreadable cell {path} ({error}); --force replaces it") from error
+        stored = stored_protocol(load_cell(path), input_kind)
+    except CellFileError as error:
+        raise CellError(f"{error}; --force replaces it") from error
     if stored == protocol:
         return True
     changed = ", ".join(
@@ -268,9 +294,69 @@ def measured(path: Path, protocol: dict[str, Any], input_kind: str) -> bool:
     )
 
 
+@contextlib.contextmanager
+def cell_lock(folder: Path) -> Iterator[None]:
+    """Hold the lock `folder/.run-cell.lock` while the block runs: one run-cell at a time per cell
+    (the lock goes with its process, also one killed); CellError naming the holder where another
+    command holds it."""
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / LOCK, "a+") as file:
+        try:
+            fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            file.seek(0)
+            holder = file.read().strip() or "another process"
+            raise CellError(
+                f"this cell is being measured by {holder} (it holds {folder / LOCK}): one run-cell "
+                "at a time per cell; wait for it to end, or stop it and run again"
+            ) from None
+        file.seek(0)
+        file.truncate()
+        started = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        file.write(f"run-cell, pid {os.getpid()} on {socket.gethostname()}, since {started}\n")
+        file.flush()
+        yield
+
+
+def check_writable(folders: list[tuple[str, Path]]) -> None:
+    """CellError naming the first of `folders` ((what it holds, folder)) no file can be written
+    into, before anything is spent."""
+    for what, folder in folders:
+        if reason := unwritable_reason(folder):
+            raise CellError(
+                f"the {what} folder {folder} cannot be written ({reason}); nothing was run"
+            )
+
+
+def finished_test(
+    run_dir: Path, checkpoint: Path, protocol: dict[str, Any]
+) -> dict[str, Any] | None:
+    """A test record of `checkpoint` in the run's `evaluation/` on the protocol's test seeds,
+    without erred episodes, of this world (`load_record`): the test of a run whose cell could not
+    be written. None where there is none."""
+    seeds = [split_seed("test", index) for index in range(protocol["test_episodes"])]
+    identity = (protocol["method"], protocol["setting"], protocol["imagery"])
+    for path in sorted((run_dir / "evaluation").glob(f"{checkpoint.stem}-test-*.json")):
+        try:
+            record = load_record(path)
+        except CellFileError:
+            continue  # damaged, or measured in another world: tested again
+        if (
+            "protocol" not in record
+            and Path(record.get("checkpoint") or "").name == checkpoint.name
+            and (record["method"], record["setting"], record.get("imagery")) == identity
+            and not record.get("errors")
+            and [episode["seed"] for episode in record.get("episode_results", [])] == seeds
+            and isinstance(record.get("wall_s"), int | float)
+        ):
+            return record
+    return None
+
+
 def fit_run(runs: Path, force: bool) -> tuple[Path, Path | None]:
     """(run folder, checkpoint to resume from or None): the latest run under `runs` with a
-    checkpoint, unless `force` or there is none, then a newly claimed `version_N`."""
+    readable checkpoint and its checkpoint of the highest step (`latest_checkpoint`), unless
+    `force` or there is none, then a newly claimed `version_N`."""
     if not force:
         try:
             checkpoint = latest_checkpoint(runs)
@@ -305,8 +391,9 @@ def _read_segments(run_dir: Path) -> list[dict[str, Any]]:
 
 
 def fit(config: dict[str, Any], run_dir: Path, resume: Path | None, device: str) -> None:
-    """`lightning fit` of `config` logging into `run_dir`, from `resume` if given; the segment
-    (start, commit, machine, wall-clock time once done) is recorded in `run_dir/fit-segments.json`."""
+    """`lightning fit` of `config` (handed over as YAML text: no file is left behind) logging into
+    `run_dir`, from `resume` if given; the segment (start, commit, machine, wall-clock time once
+    done) is recorded in `run_dir/fit-segments.json`."""
     run_dir.mkdir(parents=True, exist_ok=True)
     config = copy.deepcopy(config)
     config["trainer"]["logger"] = {
@@ -328,11 +415,8 @@ def fit(config: dict[str, Any], run_dir: Path, resume: Path | None, device: str)
         "wall_s": None,
     }
     write_json(run_dir / SEGMENTS, segments + [segment])
-    with tempfile.NamedTemporaryFile("w", suffix=".yaml", prefix=".cell-", dir=run_dir) as file:
-        yaml.safe_dump(config, file, sort_keys=False)
-        file.flush()
-        args = ["fit", "--config", file.name]
-        build_cli_from_python(args + (["--ckpt_path", str(resume)] if resume else []))
+    args = ["fit", "--config", yaml.safe_dump(config, sort_keys=False)]
+    build_cli_from_python(args + (["--ckpt_path", str(resume)] if resume else []))
     segment["wall_s"] = time.time() - segment["start_time"]
     write_json(run_dir / SEGMENTS, segments + [segment])
 
@@ -432,10 +516,53 @@ def run_cell(
     path = cell_path(results, protocol)
     if not force and measured(path, protocol, input_kind):
         return path, None
-    device = device or ("cuda" if torch.cuda.is_available() else "cpu")
-    run_dir, resume = fit_run(logs.joinpath(*cell_name(protocol), protocol_id(protocol)), force)
+    runs = logs.joinpath(*cell_name(protocol), protocol_id(protocol))
+    folders = [("fit runs", runs)]
+    if not fit_only:
+        folders.append(("results", path.parent))
+        if input_kind == "imagery":
+            # validation's (None: it caches nothing) and the test's
+            validation_cache = _callback(config, CALLBACK).get("cache_dir", DEFAULT_CACHE_DIR)
+            caches = {validation_cache, DEFAULT_CACHE_DIR} - {None}
+            folders += [("imagery cache", Path(cache)) for cache in sorted(caches)]
+    check_writable(folders)
+    with cell_lock(runs):
+        if not force and measured(path, protocol, input_kind):
+            return path, None  # measured meanwhile by the command that held the lock
+        return _measure(
+            config,
+            protocol,
+            path,
+            runs,
+            code=code,
+            overlays=overlays,
+            force=force,
+            eval_workers=eval_workers,
+            device=device or ("cuda" if torch.cuda.is_available() else "cpu"),
+            fit_only=fit_only,
+        )
+
+
+def _measure(
+    config: dict[str, Any],
+    protocol: dict[str, Any],
+    path: Path,
+    runs: Path,
+    *,
+    code: dict[str, Any],
+    overlays: list[Path] | None,
+    force: bool,
+    eval_workers: int | None,
+    device: str,
+    fit_only: bool,
+) -> tuple[Path, dict[str, Any] | None]:
+    """`run_cell` once its options are checked and its lock is held: fit (a fresh run folder the
+    fit leaves without a checkpoint is removed), validate, test (or take the finished test of a
+    cell that could not be written), write the cell."""
+    run_dir, resume = fit_run(runs, force)
     if resume is None or checkpoint_step(resume) < protocol["steps"]:
-        fit(without_closed_loop(config) if fit_only else config, run_dir, resume, device)
+        with removed_if_unused([run_dir] if resume is None else []):
+            fit(without_closed_loop(config) if fit_only else config, run_dir, resume, device)
     if fit_only:
         return run_dir, None
     validation = validate(run_dir, protocol, device, eval_workers)
@@ -445,16 +572,21 @@ def run_cell(
             f"no checkpoint under {run_dir} has a validation round without erred episodes; see "
             "the fit's log, fix the cause and run again with --force"
         )
-    start = time.perf_counter()
-    (record,) = evaluate_checkpoints(
-        run_dir,
-        "test",
-        protocol["test_episodes"],
-        only=[Path(chosen["checkpoint"])],
-        device=torch.device(device),
-        workers=eval_workers,
-    )
-    test_wall_s = time.perf_counter() - start
+    checkpoint = Path(chosen["checkpoint"])
+    record = finished_test(run_dir, checkpoint, protocol)
+    if record is not None:
+        test_wall_s = record["wall_s"]
+    else:
+        start = time.perf_counter()
+        (record,) = evaluate_checkpoints(
+            run_dir,
+            "test",
+            protocol["test_episodes"],
+            only=[checkpoint],
+            device=torch.device(device),
+            workers=eval_workers,
+        )
+        test_wall_s = time.perf_counter() - start
     if record["errors"]:
         return path, record
     segments = _read_segments(run_dir)
@@ -464,6 +596,9 @@ def run_cell(
         **{key: protocol[key] for key in ("task", "setting", "method", "imagery")},
         **{key: record[key] for key in ("episodes", "successes", "success_rate", "ci_low")},
         **{key: record[key] for key in ("ci_high", "confidence", "errors", "erred_seeds")},
+        # the project's stricter 6-DoF check (None where the test's records lack it)
+        **{f"strict_{key}": record.get(f"strict_{key}") for key in ("successes", "success_rate")},
+        **{f"strict_{key}": record.get(f"strict_{key}") for key in ("ci_low", "ci_high")},
         "failures": record["failures"],
         "test_seeds": [result["seed"] for result in record["episode_results"]],
         "checkpoint": {
@@ -493,9 +628,18 @@ def run_cell(
         "config": config,
         "overlays": [str(overlay) for overlay in overlays or []],
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "episode_results": record["episode_results"],
+        "episode_results": [
+            result | {"strict_success": result.get("strict_success")}
+            for result in record["episode_results"]
+        ],
     }
-    write_json(path, payload)
+    try:
+        write_json(path, payload)
+    except OSError as error:
+        raise CellError(
+            f"could not write the cell {path} ({error}); its test is kept in "
+            f"{run_dir / 'evaluation'}, and the same command writes the cell without testing again"
+        ) from error
     return path, payload
 
 

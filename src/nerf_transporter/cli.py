@@ -3,15 +3,20 @@ the others (oracle, generate, dataset-info, report, ...) are tools around it."""
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import itertools
 import logging
 import pickle
 import re
+import shutil
 import sys
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+
+from nerf_transporter.atomic import unwritable_reason
 
 # sub-command -> ("module:function", one-line help). Each function takes argv and returns an exit code.
 TOOLS: dict[str, tuple[str, str]] = {
@@ -134,30 +139,66 @@ def claim_version(runs: Path) -> int:
 
 
 class NoRunToResumeError(FileNotFoundError):
-    """`--ckpt_path last` where the task and method have no run with a last checkpoint."""
+    """`--ckpt_path last` where the task and method have no run with a readable checkpoint."""
+
+
+class RunArgumentError(ValueError):
+    """An option with which `lightning fit|validate|test|predict` cannot run, found before any
+    run folder is claimed (a checkpoint that is no readable file, no step to train, no episode to
+    test, a folder that cannot be written)."""
 
 
 def latest_checkpoint(runs: Path) -> Path:
-    """The checkpoint to resume from: in the highest-numbered run under `runs` that has any,
-    `last.ckpt`, else the checkpoint of the highest global step (not the most recently written:
-    a copy from another machine can give every file the same time)."""
-    from nerf_transporter.evaluation.testing import checkpoint_step
+    """The checkpoint to resume from: in the highest-numbered run under `runs` with a readable
+    checkpoint, the one of the highest global step, whatever its name (`last.ckpt` lags behind
+    where Lightning wrote `last-v1.ckpt` in a moved run folder) or time (a copy from another
+    machine can give every file the same time); an unreadable one (partly written, e.g. on a
+    full disk) is skipped with a warning."""
+    from nerf_transporter.evaluation.checkpoints import checkpoint_steps
 
-    found = []
-    for path in runs.iterdir() if runs.is_dir() else []:
-        number = _version(path)
-        checkpoints = list((path / "checkpoints").glob("*.ckpt"))
-        if number is not None and checkpoints:
-            last = path / "checkpoints" / "last.ckpt"
-            if not last.is_file():
-                last = max(checkpoints, key=lambda p: (checkpoint_step(p), p.stat().st_mtime))
-            found.append((number, last))
-    if not found:
-        raise NoRunToResumeError(
-            f"--ckpt_path last: no earlier run to resume, no checkpoint under {runs}/version_N/"
-            "checkpoints; start a new run without --ckpt_path"
-        )
-    return max(found)[1]
+    folders = list(runs.iterdir()) if runs.is_dir() else []
+    numbered = [(number, path) for path in folders if (number := _version(path)) is not None]
+    for _, path in sorted(numbered, reverse=True):
+        if steps := checkpoint_steps(path / "checkpoints"):
+            return steps[-1][1]
+    raise NoRunToResumeError(
+        f"--ckpt_path last: no earlier run to resume, no readable checkpoint under {runs}/"
+        "version_N/checkpoints; start a new run without --ckpt_path"
+    )
+
+
+@contextlib.contextmanager
+def removed_if_unused(claimed: list[Path]) -> Iterator[None]:
+    """Where the block raises, remove the run folders in `claimed` that hold no checkpoint and no
+    results file: a failed command leaves no `version_N` with nothing to resume or read."""
+    try:
+        yield
+    except BaseException:
+        from nerf_transporter.evaluation.cells import TEST_RECORD_GLOB
+
+        for folder in claimed:
+            if not any(folder.rglob("*.ckpt")) and not any(folder.rglob(TEST_RECORD_GLOB)):
+                shutil.rmtree(folder, ignore_errors=True)
+        raise
+
+
+def check_checkpoint_file(path: Path, weights_only: bool | None) -> None:
+    """RunArgumentError where `path` is no checkpoint file that loads (a folder, missing,
+    truncated); a checkpoint refused by `weights_only` raises `pickle.UnpicklingError`."""
+    import torch
+
+    if path.is_dir():
+        raise RunArgumentError(f"--ckpt_path {path} is a folder, not a checkpoint file")
+    if not path.is_file():
+        raise RunArgumentError(f"--ckpt_path {path}: no such checkpoint file")
+    try:
+        torch.load(path, map_location="cpu", weights_only=weights_only, mmap=True)
+    except pickle.UnpicklingError:
+        raise
+    except Exception as error:  # truncated, or not a checkpoint at all
+        raise RunArgumentError(
+            f"--ckpt_path {path} is not a readable checkpoint (partly written or not one): {error}"
+        ) from error
 
 
 def run_folder(checkpoint: str) -> Path | None:
@@ -172,7 +213,9 @@ def run_folder(checkpoint: str) -> Path | None:
     return None
 
 
-def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
+def build_cli(
+    args: list[str] | None = None, run: bool = True, claimed: list[Path] | None = None
+) -> Any:
     """LightningCLI: `model` is any `Method`, `data` any LightningDataModule; config files may
     build on others with `__include__` (`config_include`), the model takes its pixel size and
     rotation bins from the data (`LINKS`).
@@ -186,7 +229,10 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
     `fit --ckpt_path last` resumes the latest run of that task and method in its folder, and
     `test`/`validate`/`predict` of a run's checkpoint log into that run. Configs are saved there
     without replacing one already present. Checkpoints load with `weights_only=True` unless
-    `--weights_only false` is given. Returns the `LightningCLI` object.
+    `--weights_only false` is given. Before a run folder is claimed, the options are checked
+    (`RunArgumentError`): `--ckpt_path` a checkpoint file that loads, at least one step to fit and
+    one episode to test, the run folder and `--video` writable. The run folders claimed are
+    appended to `claimed` where given. Returns the `LightningCLI` object.
     """
     import lightning.pytorch as pl
     from lightning.fabric.utilities.rank_zero import rank_zero_only
@@ -239,10 +285,41 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
             self.closed_loop_test.video_dir = self._get(self.config, "video")
 
         def instantiate_trainer(self, **kwargs: Any) -> pl.Trainer:
+            if self.subcommand is not None:
+                self._check_arguments()
             logger = self._get(self.config_init, "trainer", default={}).get("logger")
             if logger is None or logger is True:
                 kwargs["logger"] = self._run_logger()
             return super().instantiate_trainer(**kwargs)
+
+        def _parse_ckpt_path(self) -> None:
+            """A `--ckpt_path` file is checked (`check_checkpoint_file`) before Lightning reads
+            the hyper-parameters in it."""
+            subcommand = self.config.get("subcommand")
+            ckpt_path = self.config[subcommand].get("ckpt_path") if subcommand else None
+            named = ckpt_path in ("last", "best", "hpc") or str(ckpt_path).startswith("registry")
+            if ckpt_path is not None and not named and "://" not in str(ckpt_path):
+                weights_only = self.config[subcommand].get("weights_only")
+                check_checkpoint_file(Path(ckpt_path), weights_only)
+            super()._parse_ckpt_path()
+
+        def _check_arguments(self) -> None:
+            """RunArgumentError for options the run would fail on after claiming its folder."""
+            trainer = self._get(self.config_init, "trainer", default={})
+            steps = trainer.get("max_steps") if self.subcommand == "fit" else None
+            if steps is not None and steps != -1 and steps < 1:
+                raise RunArgumentError(
+                    f"--trainer.max_steps {steps}: a fit needs at least one training step "
+                    "(-1: as many as max_epochs allows)"
+                )
+            episodes = getattr(self.datamodule, "test_episodes", None)
+            if self.subcommand == "test" and episodes is not None and episodes < 1:
+                raise RunArgumentError(
+                    f"--data.init_args.test_episodes {episodes}: a test needs at least one episode"
+                )
+            video = self._get(self.config, "video") if self.subcommand == "test" else None
+            if video and (reason := unwritable_reason(video)):
+                raise RunArgumentError(f"--video {video} cannot be written: {reason}")
 
         def _run_logger(self) -> TensorBoardLogger:
             runs = LOG_ROOT / run_name(self.model, self.datamodule)
@@ -254,6 +331,8 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
                 folder = checkpoint.parent.parent
             elif self.subcommand is not None and ckpt_path:
                 folder = run_folder(str(ckpt_path))
+            if self.subcommand is not None and (reason := unwritable_reason(folder or runs)):
+                raise RunArgumentError(f"cannot write the run folder {folder or runs}: {reason}")
             if folder is not None:
                 return TensorBoardLogger(
                     save_dir=folder.parent, name="", version=folder.name, default_hp_metric=False
@@ -262,6 +341,8 @@ def build_cli(args: list[str] | None = None, run: bool = True) -> Any:
             # a CLI built without running (run=False) claims nothing
             claim = self.subcommand is not None and rank_zero_only.rank == 0
             version = claim_version(runs) if claim else None
+            if version is not None and claimed is not None:
+                claimed.append(runs / f"version_{version}")
             return TensorBoardLogger(
                 save_dir=LOG_ROOT,
                 name=str(runs.relative_to(LOG_ROOT)),
@@ -370,12 +451,16 @@ def lightning_main(args: list[str] | None = None) -> int:
     """The `lightning` console script: `lightning fit|validate|test|predict ...`.
 
     Exits 1 when a closed-loop test had erred episodes (their seeds are listed); 2 when
-    `--ckpt_path last` finds no run to resume or a checkpoint holds more than weights."""
+    `--ckpt_path last` finds no run to resume, an option cannot run (`RunArgumentError`) or a
+    checkpoint holds more than weights. A failed command removes the run folder it claimed
+    where that holds no checkpoint and no results file (`removed_if_unused`)."""
     from nerf_transporter.evaluation.testing import erred_seeds_line
 
+    claimed: list[Path] = []
     try:
-        cli = build_cli(args)
-    except NoRunToResumeError as error:
+        with removed_if_unused(claimed):
+            cli = build_cli(args, claimed=claimed)
+    except (NoRunToResumeError, RunArgumentError) as error:
         print(f"lightning: {error}", file=sys.stderr)
         return 2
     except pickle.UnpicklingError as error:

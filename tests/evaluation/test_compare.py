@@ -6,11 +6,12 @@ import pytest
 
 from nerf_transporter.evaluation.compare import main
 from nerf_transporter.evaluation.metrics import summarize
+from nerf_transporter.sim.fingerprint import world_fingerprint
 
 
-def write_cell(folder, name, outcomes, task="block-insertion", machine="AMD EPYC"):
+def write_cell(folder, name, outcomes, task="block-insertion", machine="AMD EPYC", world=None):
     """A cell file as run-cell writes it, with these test outcomes (seed -> success or None for
-    an erred episode)."""
+    an erred episode), measured in `world` (default: this checkout's)."""
     results = [
         {
             "seed": seed,
@@ -20,8 +21,9 @@ def write_cell(folder, name, outcomes, task="block-insertion", machine="AMD EPYC
         }
         for seed, won in outcomes.items()
     ]
-    record = summarize([r for r in results if not r["error"]]) | {
-        "protocol": {"task": task},
+    record = summarize(results) | {
+        "protocol": {"task": task, "setting": "normal", "method": "mira", "imagery": "nerf"},
+        "world": world or world_fingerprint(),
         "task": task,
         "setting": "normal",
         "method": "mira",
@@ -76,3 +78,50 @@ def test_a_test_record_of_evaluate_checkpoints_is_compared_with_a_cell(tmp_path,
     assert main([str(cell), str(tested)]) == 0
     rows = [line.strip("| ").split(" | ") for line in capsys.readouterr().out.splitlines()[2:]]
     assert rows[1][2:9] == ["4000", "not recorded", "2", "1", "0", "1", "0"]
+
+
+def test_cells_of_two_worlds_are_refused_and_one_archived_world_is_compared(tmp_path, capsys):
+    first = write_cell(tmp_path, "first", {1: True, 3: False})
+    archive = tmp_path / "archive" / "world-0123456789abcdef"
+    archive.mkdir(parents=True)
+    old = write_cell(archive, "old", {1: True, 3: True}, world="0123456789abcdef")
+    assert main([str(first), str(old)]) == 2
+    err = capsys.readouterr().err
+    assert f"measured in different worlds ({first} in {world_fingerprint()}" in err
+    assert f"{old} in 0123456789abcdef" in err
+    older = write_cell(archive, "older", {1: False, 3: True}, world="0123456789abcdef")
+    assert main([str(old), str(older)]) == 0  # both of the archived world
+    elsewhere = write_cell(tmp_path, "elsewhere", {1: True}, world="0123456789abcdef")
+    assert main([str(first), str(elsewhere)]) == 2
+    assert "was measured in world 0123456789abcdef" in capsys.readouterr().err
+
+
+def edited(path, edit):
+    """`path`'s cell after `edit(record)`."""
+    record = json.loads(path.read_text())
+    edit(record)
+    path.write_text(json.dumps(record))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("edit", "problem"),
+    [
+        (
+            lambda r: [e.update(success="False") for e in r["episode_results"]],
+            'episode_results[0]: success is "False", not true or false',
+        ),
+        (lambda r: r["episode_results"][1].pop("seed"), "episode_results[1] lacks seed"),
+        (lambda r: r.pop("checkpoint"), "lacks checkpoint"),
+        (lambda r: r.update(episode_results=None), "episode_results is null, not a list"),
+    ],
+    ids=["success-string", "no-seed", "no-checkpoint", "episodes-null"],
+)
+def test_a_cell_that_cannot_be_paired_is_named(tmp_path, capsys, edit, problem):
+    """A string "False" is no success (bool() of it would pair 24 discordant seeds, p 1.2e-07)."""
+    outcomes = dict.fromkeys(range(1, 49, 2), False)
+    first = write_cell(tmp_path, "first", outcomes)
+    other = edited(write_cell(tmp_path, "other", outcomes), edit)
+    assert main([str(first), str(other)]) == 2
+    err = capsys.readouterr().err
+    assert f"nerf-transporter compare-cells: {other}" in err and problem in err, err

@@ -1,6 +1,7 @@
 """`nerf-transporter report`: the results table from results.json files."""
 
 import json
+from pathlib import Path
 
 import cv2
 import pytest
@@ -9,16 +10,20 @@ from nerf_transporter.cli import main as cli_main
 from nerf_transporter.evaluation.metrics import wilson_interval
 from nerf_transporter.evaluation.report import README_END, README_START, table_plot
 from nerf_transporter.evaluation.report import main as report_main
+from nerf_transporter.sim.fingerprint import world_fingerprint
 
 
-def _write(root, run, method, task, setting, successes, episodes, low, high, created, name=None):
+def _write(root, run, method, task, setting, successes, episodes, created, name=None):
+    """A test record as `lightning test` writes it (the fields the report reads)."""
     path = root / run / "checkpoints" / (name or "results.json")
     path.parent.mkdir(parents=True)
+    low, high = wilson_interval(successes, episodes)
     record = {
         "method": method,
         "task": task,
         "setting": setting,
         "split": "test",
+        "world": world_fingerprint(),
         "episodes": episodes,
         "successes": successes,
         "success_rate": successes / episodes,
@@ -40,8 +45,6 @@ def logs(tmp_path):
         "normal",
         3,
         20,
-        0.05,
-        0.36,
         "2024-01-01T00:00:00",
     )
     # a newer run of the same cell replaces the older one
@@ -53,8 +56,6 @@ def logs(tmp_path):
         "normal",
         16,
         20,
-        0.584,
-        0.919,
         "2024-01-02T00:00:00",
     )
     _write(
@@ -65,8 +66,6 @@ def logs(tmp_path):
         "normal",
         5,
         20,
-        0.112,
-        0.469,
         "2024-01-01T00:00:00",
     )
     _write(
@@ -77,8 +76,6 @@ def logs(tmp_path):
         "challenging",
         50,
         100,
-        0.4038,
-        0.5962,
         "2024-01-01T00:00:00",
         name="results-challenging.json",  # a Normal-trained model tested in Challenging
     )
@@ -90,8 +87,6 @@ def logs(tmp_path):
         "flat",
         20,
         20,
-        0.839,
-        1.0,
         "2024-01-01T00:00:00",
     )
     return root
@@ -153,6 +148,8 @@ def write_cell(
     protocol |= {"validation_episodes": 10, "test_episodes": episodes}
     record = {
         "protocol": protocol,
+        "world": world_fingerprint(),
+        "checkpoint": {"step": 2000},
         "validation": [{"step": step, "success_rate": rate} for step, rate in validation or ()],
         "task": task,
         "setting": setting,
@@ -242,17 +239,17 @@ def test_an_empty_results_folder_gives_the_paper_rows_and_says_what_to_run(tmp_p
 def test_report_names_a_readme_without_markers_and_a_missing_folder(tmp_path, capsys):
     readme = tmp_path / "README.md"
     readme.write_text("# no markers\n")
-    assert report_main([str(tmp_path), "--readme", str(readme)]) == 1
+    assert report_main([str(tmp_path), "--readme", str(readme)]) == 2
     assert "the README has no results block" in capsys.readouterr().err
     assert readme.read_text() == "# no markers\n"
-    assert report_main([str(tmp_path / "missing")]) == 1
+    assert report_main([str(tmp_path / "missing")]) == 2
     assert "no such directory" in capsys.readouterr().err
 
 
 def test_report_names_a_corrupt_results_file(logs, capsys):
     bad = logs / "bi/mira/version_1/checkpoints/results.json"
     bad.write_text("{not json")
-    assert report_main([str(logs)]) == 1
+    assert report_main([str(logs)]) == 2
     assert str(bad) in capsys.readouterr().err
 
 
@@ -268,7 +265,7 @@ def test_validation_plots_and_tables_hold_each_cell_with_rounds(tmp_path, capsys
     assert tables == (
         "| block-insertion | step 500 | step 1000 | test | checkpoint step | fitted on |\n"
         "| --- | --- | --- | --- | --- | --- |\n"
-        "| mira (ours) | 2/10 | 10/10 | 81% (100, 72-87) | - | AMD EPYC |\n"
+        "| mira (ours) | 2/10 | 10/10 | 81% (100, 72-87) | 2000 | AMD EPYC |\n"
     )
     assert [path.name for path in docs.iterdir()] == ["validation-block-insertion.png"]
     image = cv2.cvtColor(
@@ -280,3 +277,120 @@ def test_validation_plots_and_tables_hold_each_cell_with_rounds(tmp_path, capsys
     # the line rises from 20% at step 500 (mid-plot) to 100% at the right end
     assert cols.min() > image.shape[1] * 0.4 and cols.max() > image.shape[1] * 0.9
     assert rows[cols.argmax()] < rows[cols.argmin()]
+
+
+REPO = Path(__file__).resolve().parents[2]
+# a real cell (today's results/ or, once archived, results/archive/world-<fingerprint>/), copied
+REAL_CELL = sorted(REPO.glob("results/**/block-insertion/mira.json"))[0]
+
+
+def real_cell(root, world=None, **edits):
+    """A copy of a real cell at its place under `root`, measured in `world` (default: this
+    checkout's), with `edits` over its fields; returns its path."""
+    record = json.loads(REAL_CELL.read_text()) | {"world": world or world_fingerprint()}
+    path = root / "block-insertion" / "mira.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(record | edits))
+    return path
+
+
+def edited_episode(root, **edits):
+    """The real cell with `edits` over its first episode record."""
+    record = json.loads(REAL_CELL.read_text())
+    record["episode_results"][0] |= edits
+    return real_cell(root, episode_results=record["episode_results"])
+
+
+@pytest.mark.parametrize(
+    ("edit", "problem"),
+    [
+        (lambda root: real_cell(root, successes=99), "is not the 95% Wilson interval of 99 of 100"),
+        (lambda root: real_cell(root, successes=150), "150 successes of 100 episodes"),
+        (lambda root: real_cell(root, episodes=-5), "77 successes of -5 episodes"),
+        (lambda root: real_cell(root, successes="77"), 'successes is "77", not an integer'),
+        (lambda root: real_cell(root, protocol=None), "protocol is null, not an object"),
+        (lambda root: real_cell(root, task=["block-insertion"]), 'task is ["block-insertion"]'),
+        (lambda root: edited_episode(root, success="False"), 'success is "False", not true or'),
+        (lambda root: edited_episode(root, outcome="won"), 'outcome "won" is not success'),
+        (lambda root: edited_episode(root, strict_success="yes"), 'strict_success is "yes"'),
+        (lambda root: real_cell(root, ci_low=0.5), "is not the 95% Wilson interval of 77 of 100"),
+    ],
+    ids=[
+        "successes-99",
+        "successes-150",
+        "episodes-negative",
+        "successes-string",
+        "protocol-null",
+        "task-list",
+        "success-string",
+        "outcome-unknown",
+        "strict-string",
+        "interval",
+    ],
+)
+def test_report_refuses_an_edited_cell_by_name(tmp_path, capsys, edit, problem):
+    path = edit(tmp_path / "results")
+    assert report_main([str(tmp_path / "results")]) == 2
+    err = capsys.readouterr().err
+    assert f"nerf-transporter report: {path}" in err and problem in err, err
+
+
+def test_report_refuses_a_null_cell_and_a_cell_of_another_world_naming_both_worlds(
+    tmp_path, capsys
+):
+    results = tmp_path / "results"
+    path = real_cell(results, world="deadbeefdeadbeef", successes=99)
+    assert report_main([str(results)]) == 2
+    err = capsys.readouterr().err
+    assert f"{path} was measured in world deadbeefdeadbeef" in err
+    assert f"this checkout's world is {world_fingerprint()}" in err
+    path.write_text("null")
+    assert report_main([str(results)]) == 2
+    assert f"{path} is null, not an object" in capsys.readouterr().err
+
+
+def test_a_test_record_under_a_folder_of_cells_is_never_taken_for_a_cell(tmp_path, capsys):
+    results = tmp_path / "results"
+    real_cell(results)
+    stray = results / "block-insertion" / "results-step000002.json"  # newer, 2 episodes
+    _write(results, "block-insertion", "mira", "block-insertion", "normal", 2, 2, "2099-01-01")
+    (results / "block-insertion" / "checkpoints" / "results.json").rename(stray)
+    _write(results, "hanging-disks", "form2fit", "hanging-disks", "normal", 2, 2, "2099-01-01")
+    assert report_main([str(results)]) == 0
+    out, err = capsys.readouterr()
+    assert "| mira (ours) | 77% (100, 68-84) |" in out
+    assert "| Form2Fit |  |  |  |" in out  # its stray test record is no cell either
+    assert "left out 2 test record(s)" in err and str(stray) in err
+    misplaced = results / "block-insertion" / "form2fit.json"
+    (results / "block-insertion" / "mira.json").rename(misplaced)
+    assert report_main([str(results)]) == 2
+    assert f"{misplaced} holds the cell block-insertion/mira.json" in capsys.readouterr().err
+
+
+def test_an_archived_world_renders_under_its_own_heading_never_in_the_table(tmp_path, capsys):
+    results, old = tmp_path / "results", "0123456789abcdef"
+    write_cell(results, "form2fit", "hanging-disks", "normal", 9, 100)
+    archive = results / "archive" / f"world-{old}"
+    real_cell(archive, world=old)
+    readme = tmp_path / "README.md"
+    readme.write_text(f"{README_START}\n{README_END}\n")
+    assert report_main([str(results), "--readme", str(readme)]) == 0
+    current, archived = capsys.readouterr().out.split(f"\nArchived world {old} ({archive}: 1 of 30")
+    assert "| mira (ours) |  |" in current and "9% (100, 5-16)" in current
+    assert "| mira (ours) | 77% (100, 68-84) |" in archived and "9% (100" not in archived
+    text = readme.read_text()
+    assert (
+        f"1 of 30 cells measured in `results/`, in this checkout's world `{world_fingerprint()}`"
+        in text
+    )
+    current, archived = text.split(f"#### Archived world `{old}`")
+    assert "| mira (ours) |  |" in current and "77% (100, 68-84)" not in current
+    assert f"kept in `results/archive/world-{old}/`" in archived
+    assert "| mira (ours) | 77% (100, 68-84) |" in archived
+    # the archive folder itself, and a cell of one world in another's archive
+    assert report_main([str(archive)]) == 0
+    assert f"Archived world {old}" in capsys.readouterr().out
+    real_cell(archive, world="fedcba9876543210")
+    assert report_main([str(results)]) == 2
+    err = capsys.readouterr().err
+    assert f"lies in the archive of world {old} but was measured in world fedcba9876543210" in err

@@ -8,5 +8,7 @@
 - `testing`: `ClosedLoopTestCallback` (the CLI adds it): `lightning test` plays the test seeds
   and writes `results-<checkpoint>.json` beside the checkpoint;
 - `checkpoints`: `nerf-transporter evaluate-checkpoints`, validation success of every checkpoint;
+- `cells`: the cell files of the results table and test records, read and checked (types, counts,
+  world) for `report`, `compare-cells`, `failures` and `run-cell`;
 - `report`: `nerf-transporter report`, the results table.
 """

@@ -38,9 +38,10 @@ log = logging.getLogger(__name__)
 
 def checkpoint_steps(run_dir: Path) -> list[tuple[int, Path]]:
     """(global step, path) of every readable checkpoint under `run_dir`, by step; a copy of a step
-    (`last.ckpt`) is left out, an unreadable file is skipped with a warning."""
+    (`last.ckpt`, `last-v1.ckpt`) is left out, an unreadable file is skipped with a warning."""
     by_step: dict[int, Path] = {}
-    for path in sorted(run_dir.rglob("*.ckpt"), key=lambda p: (p.name == "last.ckpt", str(p))):
+    paths = sorted(run_dir.rglob("*.ckpt"), key=lambda p: (p.name.startswith("last"), str(p)))
+    for path in paths:
         try:
             step = checkpoint_step(path)
         except Exception as error:  # truncated, not a checkpoint, or refused by weights_only

@@ -1,7 +1,9 @@
 """`nerf-transporter compare-cells FIRST OTHER [...]`: cells of one column on their common test
 seeds, e.g. one method under two budgets, or fitted on two machines. Besides run-cell's cells it
 reads the test records `nerf-transporter evaluate-checkpoints --split test` writes into a run's
-`evaluation/` (e.g. a checkpoint tested on more seeds than its cell).
+`evaluation/` (e.g. a checkpoint tested on more seeds than its cell). Each file is checked as
+`evaluation/cells.py` checks cells, and all must come from one world: this checkout's, or one
+archived world's (`results/archive/world-<fingerprint>/`).
 
 Two rates of 100 episodes each differ by chance by up to ~13 points; on the same seeds only the
 seeds one cell succeeded on and the other failed decide between them (exact McNemar test,
@@ -11,11 +13,11 @@ seeds one cell succeeded on and the other failed decide between them (exact McNe
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 from nerf_transporter.console import HelpFormatter
+from nerf_transporter.evaluation.cells import CellFileError, load_record
 from nerf_transporter.evaluation.metrics import paired_comparison
 from nerf_transporter.evaluation.report import (
     cell,
@@ -30,19 +32,15 @@ HEADER += ["this only", "neither", "p"]
 
 
 def load_tested(paths: list[Path]) -> list[dict]:
-    """Cells of run-cell and test records of evaluate-checkpoints, each with its path."""
-    records = []
-    for path in paths:
-        try:
-            record = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as error:
-            raise ValueError(f"unreadable cell {path}: {error}") from error
-        tested = isinstance(record, dict) and record.get("split", "test") == "test"
-        if not tested or not {"task", "setting", "episode_results"} <= set(record):
-            raise ValueError(
-                f"{path} is neither a run-cell cell nor a test record of evaluate-checkpoints"
-            )
-        records.append(record | {"path": str(path)})
+    """Cells of run-cell and test records of evaluate-checkpoints, checked, each with its path;
+    each must hold its episodes, and all must come from one world."""
+    records = [load_record(path) for path in paths]
+    for record in records:
+        if "episode_results" not in record:
+            raise CellFileError(f"{record['path']} holds no episode_results to pair on")
+    if len({record["world"] for record in records}) > 1:
+        worlds = ", ".join(f"{record['path']} in {record['world']}" for record in records)
+        raise CellFileError(f"the cells were measured in different worlds ({worlds})")
     return records
 
 
@@ -55,12 +53,12 @@ def comparison_table(cells: list[dict]) -> tuple[list[str], list[list[str]]]:
     first = seed_outcomes(cells[0])
     rows = []
     for index, record in enumerate(cells):
-        checkpoint = record["checkpoint"]
-        step = checkpoint["step"] if isinstance(checkpoint, dict) else record["global_step"]
+        checkpoint = record.get("checkpoint")
+        step = checkpoint["step"] if isinstance(checkpoint, dict) else record.get("global_step")
         described = [
             record["path"],
             cell(record),
-            str(step),
+            "-" if step is None else str(step),
             ", ".join(fit_machine_names(record)),
         ]
         if index == 0:

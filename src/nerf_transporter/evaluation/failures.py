@@ -8,7 +8,7 @@ before the robot moves. A failed episode falls in one class:
   (the fixture, a distractor, the table), which the suction meets first on its way down;
 - `aimed off`: the object, carried rigidly from the pick pose to the place pose
   (`carried_pose`: place . inv(pick) . object, the inverse of the oracle's place), misses every
-  target under the task's tolerance (`Tolerance`, docs/conventions.md). The position error is
+  target under the task's tolerance (`MatchTolerance`, the anchor's check, docs/conventions.md). The position error is
   taken across the place's approach axis, since the place motion descends along that axis until
   the object touches something (an error along it does not count). `missed` says which of
   position, tilt and yaw were out of tolerance (an episode can miss several);
@@ -31,7 +31,6 @@ refused, since its seeds would build other scenes here.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 from collections import Counter
@@ -45,14 +44,13 @@ import numpy as np
 from nerf_transporter import geometry
 from nerf_transporter.atomic import write_json
 from nerf_transporter.console import HelpFormatter, progress_bar
+from nerf_transporter.evaluation.cells import find_records, load_cell, row_key
 from nerf_transporter.evaluation.metrics import paired_comparison
 from nerf_transporter.evaluation.report import (
     METHODS,
     column_name,
     in_table_order,
-    load_results,
     markdown,
-    row_key,
     seed_outcomes,
 )
 from nerf_transporter.evaluation.rollout import NOT_ACHIEVED
@@ -89,7 +87,7 @@ def aim(task: Task, object_pose: Pose, action: Mapping[str, Pose]) -> dict[str, 
     carried = carried_pose(object_pose, action)
     approach = geometry.quat_to_matrix(action["place"][1])[:, 2]
     tolerance = task.tolerance
-    limits = {"position": tolerance.position, "tilt": tolerance.tilt, "yaw": tolerance.yaw}
+    limits = {"position": tolerance.position, "tilt": tolerance.roll_pitch, "yaw": tolerance.yaw}
     aims = []
     for index, target in enumerate(task.target_poses):
         check = tolerance.check(carried, target)
@@ -337,19 +335,12 @@ def paired_table(records: list[dict[str, Any]]) -> tuple[list[str], list[list[st
 
 
 def load_cells(paths: list[Path]) -> list[dict[str, Any]]:
-    """The run-cell cells in the folders given (`<folder>/<column>/<row>.json`, as `results/`)
-    and the cell files given, each with its path under "path"."""
+    """The run-cell cells of this checkout's world in the folders given (`<folder>/<column>/
+    <row>.json`, as `results/`; archived worlds left out) and the cell files given, each checked
+    (`evaluation/cells.py`), with its path under "path"."""
     folders = [path for path in paths if not path.is_file()]
-    cells = [record for record in load_results(folders) if "protocol" in record]
-    for path in (path for path in paths if path.is_file()):
-        try:
-            record = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as error:
-            raise FailureAnalysisError(f"unreadable cell {path}: {error}") from error
-        if not isinstance(record, dict) or "protocol" not in record:
-            raise FailureAnalysisError(f"{path} is not a cell of run-cell (no protocol)")
-        cells.append(record | {"path": str(path)})
-    return cells
+    cells = [record for record in find_records(folders).records if "protocol" in record]
+    return cells + [load_cell(path) for path in paths if path.is_file()]
 
 
 def main(argv: list[str] | None = None) -> int:

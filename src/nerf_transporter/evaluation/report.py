@@ -1,12 +1,16 @@
 """`nerf-transporter report results/ [--csv] [--plot PNG] [--readme README.md]`: the results table
 (docs/conventions.md, "Evaluation protocol").
 
-Reads the records under the given directories: the cells `run-cell` writes
-(`<root>/<column>/<row>.json`) and every `results*.json` (`lightning test`, one per tested
-checkpoint, anywhere below), and prints one row per method (`mira` with oracle imagery is a row of
-its own) and one column per task/setting; a cell reads "rate% (n, CI)" with the 95% Wilson interval
-in percent, and is empty where no run exists. Where several records exist for one cell, the newest
-wins. Below each of our rows, the paper's Table 1 value of that method (`evaluation/paper.py`).
+Reads the records under the given directories (`evaluation/cells.py`, which checks each): the
+cells `run-cell` writes (`<root>/<column>/<row>.json`), or, in a folder without cells (`logs/`),
+every `results*.json` (`lightning test`, one per tested checkpoint, anywhere below); a test record
+under a folder of cells is left out, named on stderr. It prints one row per method (`mira` with
+oracle imagery is a row of its own) and one column per task/setting; a cell reads "rate% (n, CI)"
+with the 95% Wilson interval in percent, and is empty where no run exists. Where several records
+exist for one cell, a cell outranks a test record, then the newest wins. Below each of our rows,
+the paper's Table 1 value of that method (`evaluation/paper.py`). The cells of an earlier world,
+kept under `<root>/archive/world-<fingerprint>/`, follow in a table of their own under the heading
+"Archived world <fingerprint>", never in this world's table.
 `--plot` draws the table as bars with their intervals and the paper's values as markers;
 `--validation-plots DIR` draws each column's validation success against training steps (the budget
 study, `docs/budget.md`) and `--validation-tables` prints them; `--readme` rewrites the README's
@@ -19,8 +23,8 @@ from __future__ import annotations
 import argparse
 import csv
 import io
-import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
@@ -28,10 +32,10 @@ import numpy as np
 
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.drawing import bar_chart, line_chart
+from nerf_transporter.evaluation.cells import ARCHIVE, Archive, column_folder, find_records, row_key
 from nerf_transporter.evaluation.paper import PAPER_COLUMNS, PAPER_SUCCESS
+from nerf_transporter.sim.fingerprint import world_fingerprint
 
-RESULTS_GLOB = "results*.json"
-CELL_GLOB = "*/*.json"  # run-cell: <root>/<task>[-<setting>]/<method>[-oracle].json
 # rows of the table, in order: the method's name, or `<method>-oracle` for oracle imagery
 METHODS = {
     "mira": "mira (ours)",
@@ -48,42 +52,13 @@ TASKS = ("block-insertion", "place-red-in-green", "hanging-disks", "stacking-kit
 SETTINGS = ("normal", "challenging", "flat")
 # the columns of the paper's Table 1, always shown; other task/settings follow when results exist
 COLUMNS = PAPER_COLUMNS
-REQUIRED_KEYS = ("method", "task", "setting", "episodes", "successes", "ci_low", "ci_high")
 README_START = "<!-- results table: written by `nerf-transporter report results/ --readme README.md`; do not edit -->"
 README_END = "<!-- end of the results table -->"
-
-
-def row_key(method: str, imagery: str | None) -> str:
-    """The table row of a record: the method, `<method>-oracle` where it ran on oracle imagery."""
-    return f"{method}-oracle" if imagery == "oracle" else method
-
-
-def load_results(roots: list[Path]) -> list[dict]:
-    """Every cell and results file under `roots`, each with its path under "path"."""
-    records = []
-    for root in roots:
-        if not root.is_dir():
-            raise FileNotFoundError(f"no such directory: {root}")
-        for path in sorted(set(root.rglob(RESULTS_GLOB)) | set(root.glob(CELL_GLOB))):
-            try:
-                record = json.loads(path.read_text())
-            except (OSError, json.JSONDecodeError) as error:
-                raise ValueError(f"unreadable results file {path}: {error}") from error
-            missing = [key for key in REQUIRED_KEYS if key not in record]
-            if missing:
-                raise ValueError(f"results file {path} lacks {', '.join(missing)}")
-            records.append(record | {"path": str(path)})
-    return records
 
 
 def seed_outcomes(record: dict) -> dict[int, bool]:
     """A cell's test episodes, seed -> success, erred episodes left out."""
     return {e["seed"]: e["success"] for e in record["episode_results"] if not e.get("error")}
-
-
-def column_folder(task: str, setting: str) -> str:
-    """The folder of a column's cells under `results/`, `<task>[-<setting>]`."""
-    return task if setting == "normal" else f"{task}-{setting}"
 
 
 def column_name(task: str, setting: str) -> str:
@@ -112,9 +87,11 @@ def _column_order(column: tuple[str, str]) -> tuple:
 
 
 def newest_records(records: list[dict]) -> dict[tuple[str, str, str], dict]:
-    """(row, task, setting) -> the newest record of that cell (`row_key` names the row)."""
+    """(row, task, setting) -> the newest record of that cell (`row_key` names the row); a cell
+    outranks any test record."""
     newest: dict[tuple[str, str, str], dict] = {}
-    for record in sorted(records, key=lambda r: (r.get("created", ""), r["path"])):
+    ranked = sorted(records, key=lambda r: ("protocol" in r, r.get("created", ""), r["path"]))
+    for record in ranked:
         row = row_key(record["method"], record.get("imagery"))
         newest[(row, record["task"], record["setting"])] = record
     return newest
@@ -296,19 +273,41 @@ def fit_machines(records: list[dict]) -> list[str]:
     return lines
 
 
-def readme_block(records: list[dict]) -> str:
-    """The README's results block (without its markers): how many cells are measured, the table,
-    and the plot where any cell is."""
+def _machine_lines(records: list[dict]) -> list[str]:
+    """The README's lines on where the cells' fits ran, none where no cell says."""
+    machines = fit_machines(records)
+    if not machines:
+        return []
+    where = "Where the fits ran (each cell's `machine.fit`; its test ran on `machine.test`):"
+    return ["", where, "", *(f"- {line}" for line in machines)]
+
+
+def archive_title(archive: Archive) -> str:
+    """The heading line of an archived world's table in the report's output."""
+    total = len(METHODS) * len(COLUMNS)
+    return (
+        f"Archived world {archive.world} ({archive.folder}: {measured_cells(archive.cells)} of "
+        f"{total} cells, measured in an earlier world, not comparable with this world's)"
+    )
+
+
+def readme_block(records: list[dict], archives: Sequence[Archive] = ()) -> str:
+    """The README's results block (without its markers): this world's table, with its world, how
+    many cells are measured, where they were fitted, the plot and the run-cell commands; then each
+    archived world's table under its own heading."""
     count, total = measured_cells(records), len(METHODS) * len(COLUMNS)
+    fingerprint = world_fingerprint()
+    world = f"this checkout's world `{fingerprint}` (its fingerprint, `sim/fingerprint.py`)"
     header, rows = results_table(records)
     lines = [
         f"Full protocol (`nerf-transporter run-cell`, see below): {count} of {total} cells measured "
-        "in `results/`.",
+        f"in `results/`, in {world}.",
     ]
     if count == 0:
         lines[0] = (
             f"Full protocol (`nerf-transporter run-cell`, see below): no cell has been measured "
-            f"yet (`results/` holds none of the {total}); the table shows the paper's values only."
+            f"yet in {world}: `results/` holds none of the {total}, the table shows the paper's "
+            "values only."
         )
     lines += [
         "",
@@ -318,11 +317,7 @@ def readme_block(records: list[dict]) -> str:
         "the write-up this project started from (see [Citation](#citation); success %, 10 "
         "demonstrations, its number of test episodes not stated; `evaluation/paper.py`).",
     ]
-    machines = fit_machines(records)
-    if machines:
-        where = "Where the fits ran (each cell's `machine.fit`; its test ran on `machine.test`):"
-        lines += ["", where, ""]
-        lines += [f"- {line}" for line in machines]
+    lines += _machine_lines(records)
     if count:
         lines += ["", "![results table as bars](results/table1.png)"]
     commands = cell_commands(records)
@@ -332,6 +327,19 @@ def readme_block(records: list[dict]) -> str:
             "Each measured cell is remeasured from scratch by (its protocol, as recorded):",
         ]
         lines += ["", *(f"    {command} --force" for command in commands)]
+    for archive in archives:
+        header, rows = results_table(archive.cells)
+        lines += [
+            "",
+            f"#### Archived world `{archive.world}`",
+            "",
+            f"{measured_cells(archive.cells)} of {total} cells measured in an earlier world, kept "
+            f"in `results/{ARCHIVE}/world-{archive.world}/`: its seeds built other scenes than "
+            "this world's, so these numbers are not comparable with the table above.",
+            "",
+            markdown(header, rows).rstrip("\n"),
+            *_machine_lines(archive.cells),
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -372,11 +380,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="nerf-transporter report",
         description="Print the success-rate table (rate% (episodes, 95% Wilson CI)) from the "
-        "results files (results*.json) that `lightning test` wrote under the given directories.",
+        "cells run-cell wrote (<folder>/<column>/<row>.json), or from the results files "
+        "(results*.json) `lightning test` wrote, under the given directories; the cells of an "
+        "earlier world (<folder>/archive/world-<fingerprint>/) follow in tables of their own.",
         formatter_class=HelpFormatter,
     )
     parser.add_argument(
-        "roots", nargs="*", default=["logs"], help="folders searched for results*.json"
+        "roots", nargs="*", default=["logs"], help="folders of cells (results/) or of runs (logs/)"
     )
     parser.add_argument("--csv", action="store_true", help="CSV instead of a markdown table")
     parser.add_argument(
@@ -400,19 +410,29 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     try:
-        records = load_results([Path(root) for root in args.roots])
+        found = find_records([Path(root) for root in args.roots])
+        records = found.records
         if args.readme:
             text = args.readme.read_text()
-            args.readme.write_text(replace_readme_block(text, readme_block(records)))
+            block = readme_block(records, found.archives)
+            args.readme.write_text(replace_readme_block(text, block))
     except (OSError, ValueError) as error:
         print(f"nerf-transporter report: {error}", file=sys.stderr)
-        return 1
+        return 2
+    if found.left_out:
+        print(
+            f"nerf-transporter report: left out {len(found.left_out)} test record(s) under a "
+            "folder of cells (not cells of the table): "
+            + ", ".join(str(path) for path in found.left_out),
+            file=sys.stderr,
+        )
     if not records:
         roots = " ".join(str(root) for root in args.roots)
         print(
-            f"nerf-transporter report: no results under {roots} (only the paper's values below); "
-            "run `nerf-transporter run-cell --task <task> --method <method>` or `lightning test "
-            "--config <config> --ckpt_path <ckpt>` first",
+            f"nerf-transporter report: no results of this checkout's world {world_fingerprint()} "
+            f"under {roots} (only the paper's values below); run `nerf-transporter run-cell "
+            "--task <task> --method <method>` or `lightning test --config <config> --ckpt_path "
+            "<ckpt>` first",
             file=sys.stderr,
         )
     if args.plot:
@@ -425,8 +445,16 @@ def main(argv: list[str] | None = None) -> int:
             path = args.validation_plots / f"validation-{column_folder(task, setting)}.png"
             if not _write_png(path, validation_plot(task, setting, cells)):
                 return 1
-    header, rows = results_table(records)
-    sys.stdout.write(csv_text(header, rows) if args.csv else markdown(header, rows))
+    table = csv_text if args.csv else markdown
+    sys.stdout.write(table(*results_table(records)))
+    for archive in found.archives:
+        title = (
+            csv_text([archive_title(archive)], []) if args.csv else f"{archive_title(archive)}\n\n"
+        )
+        sys.stdout.write("\n" + title + table(*results_table(archive.cells)))
     if args.validation_tables:
         sys.stdout.write("\n" + validation_tables(records))
+        for archive in found.archives:
+            if tables := validation_tables(archive.cells):
+                sys.stdout.write(f"\n{archive_title(archive)}\n\n{tables}")
     return 0

@@ -1,0 +1,402 @@
+"""Cell files of the results table and test records, checked before any of their numbers is used.
+
+`report`, `compare-cells`, `failures` and `run-cell`'s skip check read them here. A cell is what
+`run-cell` writes (`<results>/<column>/<row>.json`, with its `protocol`); a test record is what
+`lightning test` (`results-<checkpoint>.json`) and `evaluate-checkpoints --split test`
+(`<run>/evaluation/<checkpoint>-test-<setting>.json`) write. Either is refused, naming the file
+and the problem, where a field has the wrong type, the counts disagree (successes <= episodes,
+the counts of its episode records, the Wilson interval recomputed; the same for the strict 6-DoF
+count `strict_successes` where present), an outcome is not a real boolean or one of the outcome
+strings, or it was measured in another world than the one expected: this checkout's
+(`sim/fingerprint.py`), or, for a file under `<results>/archive/world-<fingerprint>/` (the cells
+of an earlier world, kept with the layout of `results/`), that fingerprint.
+
+`find_records` reads the folders `report` is given: the cells of a folder of cells (each where
+run-cell writes it, else refused), else, in a folder of runs such as `logs/`, its test records
+(`results*.json`). A test record under a folder of cells is left out: it is never taken for a
+cell of the table. The archived worlds below a folder come apart, one `Archive` each.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import json
+import math
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from itertools import pairwise
+from pathlib import Path
+from typing import Any
+
+from nerf_transporter.evaluation.metrics import wilson_interval
+from nerf_transporter.sim.fingerprint import world_fingerprint
+
+TEST_RECORD_GLOB = "results*.json"  # lightning test's records, one per tested checkpoint
+ARCHIVE = "archive"  # <results>/archive/world-<fingerprint>/: the cells of an earlier world
+ARCHIVED_WORLD = re.compile(r"world-([0-9a-f]{16})")
+OUTCOMES = ("success", "failure", "error")
+TOLERANCE = 1e-9  # how far a stored interval may lie from the one recomputed from its counts
+
+
+class CellFileError(ValueError):
+    """A file that is not a valid cell or test record (the message names it and the problem)."""
+
+
+def row_key(method: str, imagery: str | None) -> str:
+    """The table row of a record: the method, `<method>-oracle` where it ran on oracle imagery."""
+    return f"{method}-oracle" if imagery == "oracle" else method
+
+
+def column_folder(task: str, setting: str) -> str:
+    """The folder of a column's cells under `results/`, `<task>[-<setting>]`."""
+    return task if setting == "normal" else f"{task}-{setting}"
+
+
+# a field's kind -> (test, what it is called); a kind ending in "?" also takes null
+KINDS: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "int": (lambda v: isinstance(v, int) and not isinstance(v, bool), "an integer"),
+    "number": (
+        lambda v: isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v),
+        "a finite number",
+    ),
+    "bool": (lambda v: isinstance(v, bool), "true or false"),
+    "str": (lambda v: isinstance(v, str), "a string"),
+    "list": (lambda v: isinstance(v, list), "a list"),
+    "dict": (lambda v: isinstance(v, dict), "an object"),
+}
+# the fields of every cell and test record, then those of cells, protocols, test records and
+# episode records: field -> kind; the optional ones may be absent
+RECORD_FIELDS = {
+    "method": "str",
+    "task": "str",
+    "setting": "str",
+    "world": "str",
+    "episodes": "int",
+    "successes": "int",
+    "ci_low": "number",
+    "ci_high": "number",
+}
+RECORD_OPTIONAL = {
+    "imagery": "str?",
+    "split": "str",
+    "created": "str",
+    "episode_results": "list",
+    "errors": "int",
+    "erred_seeds": "list",
+    "confidence": "number",
+    "success_rate": "number?",
+    "strict_successes": "int?",
+    "strict_success_rate": "number?",
+    "strict_ci_low": "number?",
+    "strict_ci_high": "number?",
+}
+CELL_FIELDS = {"protocol": "dict", "checkpoint": "dict"}
+CELL_OPTIONAL = {
+    "validation": "list",
+    "machine": "dict",
+    "overlays": "list",
+    "config": "dict",
+    "test_seeds": "list",
+    "git": "dict?",
+}
+PROTOCOL_FIELDS = {"task": "str", "setting": "str", "method": "str"}
+PROTOCOL_OPTIONAL = {
+    "imagery": "str?",
+    "steps": "int",
+    "batch_size": "int",
+    "lr": "number",
+    "validation_every": "int",
+    "validation_episodes": "int",
+    "test_episodes": "int",
+    "model": "dict",
+}
+TEST_RECORD_FIELDS = {"split": "str"}
+TEST_RECORD_OPTIONAL = {"checkpoint": "str?", "global_step": "int?"}
+EPISODE_FIELDS = {"seed": "int", "success": "bool"}
+EPISODE_OPTIONAL = {"outcome": "str", "error": "str?", "failure": "str?", "strict_success": "bool?"}
+
+
+def _check_fields(
+    record: Any, required: dict[str, str], optional: dict[str, str], where: str
+) -> None:
+    """CellFileError where `record` is no object, lacks a required key or holds a value of
+    another kind than its field's."""
+    if not isinstance(record, dict):
+        raise CellFileError(f"{where} is {json.dumps(record)[:40]}, not an object")
+    missing = [key for key in required if key not in record]
+    if missing:
+        raise CellFileError(f"{where} lacks {', '.join(missing)}")
+    for key, kind in (required | optional).items():
+        value = record.get(key)
+        test, name = KINDS[kind.rstrip("?")]
+        if key in record and not (test(value) or (value is None and kind.endswith("?"))):
+            null = " or null" if kind.endswith("?") else ""
+            raise CellFileError(f"{where}: {key} is {json.dumps(value)[:40]}, not {name}{null}")
+
+
+def _check_interval(
+    where: str, prefix: str, successes: int, episodes: int, record: dict[str, Any]
+) -> None:
+    """CellFileError where `<prefix>ci_low`/`<prefix>ci_high` are not the Wilson interval of the
+    counts at the record's confidence."""
+    confidence = record.get("confidence", 0.95)
+    low, high = wilson_interval(successes, episodes, confidence)
+    stored = record.get(f"{prefix}ci_low"), record.get(f"{prefix}ci_high")
+    if not all(KINDS["number"][0](value) for value in stored) or not (
+        math.isclose(stored[0], low, abs_tol=TOLERANCE)
+        and math.isclose(stored[1], high, abs_tol=TOLERANCE)
+    ):
+        raise CellFileError(
+            f"{where}: {prefix}ci_low-{prefix}ci_high {stored[0]}-{stored[1]} is not the "
+            f"{confidence:.0%} Wilson interval of {successes} of {episodes} ({low:.4f}-{high:.4f})"
+        )
+
+
+def _check_rate(where: str, key: str, rate: Any, successes: int, episodes: int) -> None:
+    expected = successes / episodes if episodes else None
+    if (rate is None) != (expected is None) or (
+        rate is not None and not math.isclose(rate, expected, abs_tol=TOLERANCE)
+    ):
+        raise CellFileError(f"{where}: {key} {rate} is not {successes} of {episodes}")
+
+
+def _check_counts(record: dict[str, Any], where: str) -> None:
+    """Successes within episodes, the rate and the interval those counts give, the erred seeds
+    as many as the errors; the same for the strict 6-DoF count where the record holds one."""
+    episodes, successes, errors = record["episodes"], record["successes"], record.get("errors", 0)
+    if episodes < 0 or errors < 0 or not 0 <= successes <= episodes:
+        raise CellFileError(
+            f"{where}: {successes} successes of {episodes} episodes ({errors} erred): counts lie "
+            "in 0..episodes"
+        )
+    if not 0 < record.get("confidence", 0.95) < 1:
+        raise CellFileError(f"{where}: confidence {record['confidence']} is not in (0, 1)")
+    _check_interval(where, "", successes, episodes, record)
+    if "success_rate" in record:
+        _check_rate(where, "success_rate", record["success_rate"], successes, episodes)
+    erred_seeds = record.get("erred_seeds")
+    if erred_seeds is not None and (
+        len(erred_seeds) != errors or not all(KINDS["int"][0](seed) for seed in erred_seeds)
+    ):
+        raise CellFileError(f"{where}: erred_seeds {erred_seeds} are not the {errors} erred")
+    strict = record.get("strict_successes")
+    if strict is not None:
+        if not 0 <= strict <= episodes:
+            raise CellFileError(
+                f"{where}: {strict} strict successes of {episodes} episodes: counts lie in "
+                "0..episodes"
+            )
+        _check_interval(where, "strict_", strict, episodes, record)
+        if "strict_success_rate" in record:
+            rate = record["strict_success_rate"]
+            _check_rate(where, "strict_success_rate", rate, strict, episodes)
+
+
+def _check_episodes(record: dict[str, Any], where: str) -> None:
+    """Each episode record's types and its outcome agreeing with success and error; the counts of
+    those that ran and erred those of the record, its test seeds theirs."""
+    episodes = record.get("episode_results")
+    if episodes is None:
+        return
+    for index, episode in enumerate(episodes):
+        place = f"{where}: episode_results[{index}]"
+        _check_fields(episode, EPISODE_FIELDS, EPISODE_OPTIONAL, place)
+        erred = episode.get("error") is not None
+        outcome = "error" if erred else ("success" if episode["success"] else "failure")
+        if episode.get("outcome", outcome) != outcome:
+            raise CellFileError(
+                f"{place}: outcome {json.dumps(episode['outcome'])} is not {outcome} (success "
+                f"{json.dumps(episode['success'])}, error {json.dumps(episode.get('error'))}; "
+                f"outcomes: {', '.join(OUTCOMES)})"
+            )
+    ran = [episode for episode in episodes if episode.get("error") is None]
+    counts = {
+        "episodes": len(ran),
+        "successes": sum(episode["success"] for episode in ran),
+        "errors": len(episodes) - len(ran),
+    }
+    if record.get("strict_successes") is not None:
+        counts["strict_successes"] = sum(episode.get("strict_success") is True for episode in ran)
+    for key, count in counts.items():
+        if record.get(key, 0) != count:
+            raise CellFileError(
+                f"{where}: {key} is {record.get(key, 0)}, its episodes hold {count}"
+            )
+    seeds = [episode["seed"] for episode in episodes]
+    if record.get("test_seeds", seeds) != seeds:
+        raise CellFileError(f"{where}: test_seeds are not the seeds of its episode_results")
+
+
+def _check_cell(record: dict[str, Any], where: str) -> None:
+    """A cell's own fields: its protocol naming the cell's task, setting, method and imagery, the
+    chosen checkpoint's step, the validation rounds, machines and overlays."""
+    _check_fields(record, CELL_FIELDS, CELL_OPTIONAL, where)
+    protocol = record["protocol"]
+    _check_fields(protocol, PROTOCOL_FIELDS, PROTOCOL_OPTIONAL, f"{where}: protocol")
+    for key in ("task", "setting", "method", "imagery"):
+        if protocol.get(key) != record.get(key):
+            raise CellFileError(
+                f"{where}: its protocol's {key} is {json.dumps(protocol.get(key))}, the cell's "
+                f"{json.dumps(record.get(key))}"
+            )
+    _check_fields(record["checkpoint"], {"step": "int"}, {"path": "str"}, f"{where}: checkpoint")
+    for index, entry in enumerate(record.get("validation", [])):
+        rounds = {"step": "int", "success_rate": "number?"}
+        _check_fields(entry, rounds, {}, f"{where}: validation[{index}]")
+    machine = record.get("machine", {})
+    _check_fields(machine, {}, {"fit": "list", "test": "dict"}, f"{where}: machine")
+    for index, fit in enumerate(machine.get("fit", [])):
+        _check_fields(fit, {}, {"cpu": "str?", "gpu": "str?"}, f"{where}: machine.fit[{index}]")
+    if not all(isinstance(overlay, str) for overlay in record.get("overlays", [])):
+        raise CellFileError(f"{where}: overlays {record['overlays']} are not config paths")
+
+
+def _check_world(record: dict[str, Any], where: str, world: str, archived: bool) -> None:
+    """CellFileError naming both fingerprints where `record` was measured in another world."""
+    measured = record["world"]
+    if measured == world:
+        return
+    git = record.get("git")
+    commit = git.get("commit") if isinstance(git, dict) else None
+    at = f" at commit {commit}" if commit else ""
+    if archived:
+        raise CellFileError(
+            f"{where} lies in the archive of world {world} but was measured in world "
+            f"{measured}{at}: move it to the archive of its own world, {ARCHIVE}/world-{measured}/"
+        )
+    raise CellFileError(
+        f"{where} was measured in world {measured}{at}, this checkout's world is {world}: its "
+        f"seeds build other scenes here. Keep it under <results>/{ARCHIVE}/world-{measured}/ "
+        "(report shows it under its own heading) or measure it again"
+    )
+
+
+def archived_world(path: Path) -> str | None:
+    """The fingerprint of the archive `path` lies in (`.../archive/world-<fingerprint>/...`)."""
+    worlds = [
+        match.group(1)
+        for parent, name in pairwise(path.absolute().parts)
+        if parent == ARCHIVE and (match := ARCHIVED_WORLD.fullmatch(name))
+    ]
+    return worlds[-1] if worlds else None
+
+
+def _read(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise CellFileError(f"unreadable results file {path}: {error}") from error
+
+
+def _checked(record: Any, path: Path, world: str | None) -> dict[str, Any]:
+    """`record` read from `path`, checked (see the module docstring), with "path" added."""
+    where = str(path)
+    _check_fields(record, RECORD_FIELDS, RECORD_OPTIONAL, where)
+    if record.get("split", "test") != "test":
+        raise CellFileError(
+            f"{where} is neither a run-cell cell nor a test record: its split is "
+            f"{json.dumps(record['split'])}"
+        )
+    archive = archived_world(path)
+    _check_world(record, where, world or archive or world_fingerprint(), archive is not None)
+    if "protocol" in record:
+        _check_cell(record, where)
+    else:
+        _check_fields(record, TEST_RECORD_FIELDS, TEST_RECORD_OPTIONAL, where)
+    _check_counts(record, where)
+    _check_episodes(record, where)
+    return record | {"path": where}
+
+
+def load_record(path: Path, world: str | None = None) -> dict[str, Any]:
+    """The cell or test record in `path`, checked, with its path under "path"; measured in
+    `world` (default: the world of the archive it lies in, else this checkout's)."""
+    return _checked(_read(path), path, world)
+
+
+def load_cell(path: Path, world: str | None = None) -> dict[str, Any]:
+    """The run-cell cell in `path`, as `load_record` checks it."""
+    record = _read(path)
+    if isinstance(record, dict) and "protocol" not in record:
+        raise CellFileError(f"{path} is not a cell of run-cell (no protocol)")
+    return _checked(record, path, world)
+
+
+def _placed(record: dict[str, Any], path: Path) -> dict[str, Any]:
+    """`record` where it lies where run-cell writes its cell (`<column>/<row>.json`)."""
+    column = column_folder(record["task"], record["setting"])
+    row = row_key(record["method"], record.get("imagery"))
+    if (path.parent.name, path.stem) != (column, row):
+        raise CellFileError(
+            f"{path} holds the cell {column}/{row}.json: a cell is read only where run-cell "
+            "writes it"
+        )
+    return record
+
+
+@dataclass
+class Archive:
+    """The cells of an earlier world, kept under `<results>/archive/world-<world>/`."""
+
+    world: str
+    folder: Path
+    cells: list[dict[str, Any]] = field(default_factory=list)
+
+
+@dataclass
+class Found:
+    """What `find_records` found: the records of this checkout's world, the archived worlds, and
+    the test records left out (under a folder of cells: not cells of the table)."""
+
+    records: list[dict[str, Any]] = field(default_factory=list)
+    archives: list[Archive] = field(default_factory=list)
+    left_out: list[Path] = field(default_factory=list)
+
+
+def _folders(root: Path) -> list[tuple[Path, str | None]]:
+    """(folder, archived world or None for this checkout's) of each folder `root` stands for."""
+    if root.absolute().name == ARCHIVE:
+        children = sorted(path for path in root.iterdir() if path.is_dir())
+        return [
+            (path, match.group(1))
+            for path in children
+            if (match := ARCHIVED_WORLD.fullmatch(path.name))
+        ]
+    world = archived_world(root)
+    if world is not None:
+        return [(root, world)]
+    return [(root, None)] + (_folders(root / ARCHIVE) if (root / ARCHIVE).is_dir() else [])
+
+
+def find_records(roots: list[Path]) -> Found:
+    """The cells and test records under `roots`, checked (see the module docstring)."""
+    found, archives, seen = Found(), {}, set()
+    for root in roots:
+        if not root.is_dir():
+            raise FileNotFoundError(f"no such directory: {root}")
+        for folder, world in _folders(root):
+            if folder.resolve() in seen:
+                continue
+            seen.add(folder.resolve())
+            cells = sorted(
+                path
+                for path in folder.glob("*/*.json")
+                if path.parent.name != ARCHIVE and not fnmatch.fnmatch(path.name, TEST_RECORD_GLOB)
+            )
+            tests = sorted(
+                path
+                for path in folder.rglob(TEST_RECORD_GLOB)
+                if world is not None or not path.is_relative_to(folder / ARCHIVE)
+            )
+            if cells or world is not None:
+                records = [_placed(load_cell(path, world), path) for path in cells]
+                found.left_out += tests
+            else:
+                records = [load_record(path) for path in tests]
+            if world is None:
+                found.records += records
+            elif records:
+                archives.setdefault(world, Archive(world, folder)).cells.extend(records)
+    found.archives = list(archives.values())
+    return found
