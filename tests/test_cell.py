@@ -16,9 +16,12 @@ import yaml
 from nerf_transporter import cell as cell_module
 from nerf_transporter.atomic import write_new_json
 from nerf_transporter.cell import CellError, apply_budget, run_cell
-from nerf_transporter.evaluation.cells import find_records
+from nerf_transporter.data.datamodule import RavensDataModule
+from nerf_transporter.evaluation.cells import CellFileError, find_records, load_cell
 from nerf_transporter.evaluation.metrics import summarize
 from nerf_transporter.evaluation.report import results_table
+from nerf_transporter.evaluation.rollout import EvaluationSpec
+from nerf_transporter.geometry import view_grid
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
 REPO = Path(__file__).resolve().parents[1]
@@ -88,9 +91,10 @@ class FakeLightning:
                 raise KeyboardInterrupt
 
 
-def fake_test(run_dir, split, episodes, *, only, errors=0, **kwargs):
+def fake_test(run_dir, split, episodes, *, only, errors=0, setting=None, **kwargs):
     """Stands in for `evaluate_checkpoints`: on test seeds 1, 3, 5, ... every other one succeeds;
-    on validation seeds the first `VALIDATION_SUCCESSES[step]`, recorded as the real one does."""
+    on validation seeds the first `VALIDATION_SUCCESSES[step]`, recorded as the real one does (in
+    `setting`, default Normal)."""
     records = []
     for path in only:
         step = torch.load(path, weights_only=True)["global_step"]
@@ -102,10 +106,11 @@ def fake_test(run_dir, split, episodes, *, only, errors=0, **kwargs):
         ]
         for result in results[:errors]:
             result |= {"success": False, "error": "ValueError: broken cache"}
-        record = {"checkpoint": str(path), "global_step": step, "split": split, "setting": "normal"}
+        setting = setting or "normal"
+        record = {"checkpoint": str(path), "global_step": step, "split": split, "setting": setting}
         record |= {"world": world_fingerprint(), **summarize(results), "episode_results": results}
         if split == "validation":
-            write_new_json(run_dir / "evaluation", f"{path.stem}-{split}-normal", record)
+            write_new_json(run_dir / "evaluation", f"{path.stem}-{split}-{setting}", record)
         records.append(record)
     return records
 
@@ -188,7 +193,7 @@ def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol
     assert stored["train_wall_s"] >= 0 and stored["test_wall_s"] >= 0
     # the report reads the cell into its own row
     header, rows = results_table(find_records([Path("results")]).records)
-    assert rows[2][:2] == ["mira, oracle imagery", "67% (3, 21-94)"]
+    assert rows[2][:2] == ["mira, oracle imagery", "67% (3, 21-94) / -"]
 
     assert run() == (cell, None)  # measured: skipped, nothing fitted
     assert len(fakes.calls) == 2
@@ -242,6 +247,112 @@ def test_a_fit_without_pybullet_is_validated_where_the_cell_is_tested(fakes, mon
     assert evaluated == [("validation", name) for name in rounds] + [("test", rounds[2])]
     assert [r["success_rate"] for r in stored["validation"]] == [0.25, 0.75, 0.75, 0.5]
     assert stored["checkpoint"]["step"] == 6 and stored["checkpoint"]["validation_successes"] == 3
+
+
+def settings_tested(monkeypatch):
+    """The (split, setting) of every `evaluate_checkpoints` call from here on (fake_test's)."""
+    calls = []
+
+    def recorded(run_dir, split, episodes, *, only, setting=None, **kwargs):
+        calls.append((split, setting))
+        return fake_test(run_dir, split, episodes, only=only, setting=setting, **kwargs)
+
+    monkeypatch.setattr(cell_module, "evaluate_checkpoints", recorded)
+    return calls
+
+
+def test_a_challenging_cell_tests_the_normal_cells_fit_and_checkpoint_and_names_it(
+    fakes, monkeypatch
+):
+    calls = settings_tested(monkeypatch)
+    path, cross = run(test_setting="challenging")  # first: it fits as the Normal cell would
+    assert path == Path("results/block-insertion-challenging/mira-oracle.json")
+    assert len(fakes.calls) == 1 and fakes.configs[0]["data"]["init_args"]["setting"] == "normal"
+    # validated on Normal validation seeds, tested on Challenging test seeds
+    assert calls == [("test", "challenging")]  # the fit's rounds stored with its checkpoints
+    spec = EvaluationSpec.from_datamodule(
+        RavensDataModule("block-insertion", imagery="oracle"), split="test", setting=calls[0][1]
+    )
+    assert spec.grid.shape == (121, 2) and (spec.grid == view_grid("challenging")).all()
+
+    normal_path, normal = run()  # the Normal cell: the same fit, never fitted again
+    assert normal_path == Path("results/block-insertion/mira-oracle.json")
+    assert len(fakes.calls) == 1 and calls[1:] == [("test", "normal")]
+    assert "trained_setting" not in normal["protocol"] and "fit" not in normal
+    fit_id = cell_module.protocol_id(normal["protocol"])
+    assert normal["protocol_id"] == fit_id == cross["fit"]["protocol_id"]
+    assert cross["protocol"] == normal["protocol"] | {
+        "setting": "challenging",
+        "trained_setting": "normal",
+        "fit_protocol_id": fit_id,
+    }
+    assert (cross["setting"], cross["run_dir"]) == ("challenging", normal["run_dir"])
+    assert cross["checkpoint"] == normal["checkpoint"] and cross["checkpoint"]["step"] == 6
+    assert cross["fit"] == {
+        "protocol_id": fit_id,
+        "run_dir": normal["run_dir"],
+        "checkpoint": normal["checkpoint"]["path"],
+    }
+    assert cross["validation"] == normal["validation"] and cross["config"] == normal["config"]
+    assert Path(normal["run_dir"]).parent.parent == Path("logs/cells/block-insertion/mira-oracle")
+
+    assert run(test_setting="challenging") == (path, None)  # measured: skipped
+    _, again = run(test_setting="challenging", force=True)  # tested again, never fitted again
+    assert len(fakes.calls) == 1 and calls[-1] == ("test", "challenging")
+    assert again["fit"] == cross["fit"]
+    # the cell loader reads both, each into its own column
+    header, rows = results_table(find_records([Path("results")]).records)
+    assert header[1:3] == ["block-insertion", "block-insertion Challenging"]
+    assert rows[2][1:3] == ["67% (3, 21-94) / -"] * 2
+
+
+def test_a_challenging_cell_resumes_an_unfinished_normal_fit_in_its_folder(fakes, monkeypatch):
+    fakes.interrupt_at = 4
+    with pytest.raises(KeyboardInterrupt):
+        run()  # the Normal cell, interrupted
+    fakes.interrupt_at = None
+    _, cross = run(test_setting="challenging")
+    (run_dir,) = Path("logs/cells/block-insertion/mira-oracle").glob("*/version_*")
+    assert fakes.calls == [None, str(run_dir / "checkpoints" / "step000004.ckpt")]
+    assert fakes.configs[0] == fakes.configs[1]  # resumed with the Normal cell's own config
+    assert cross["run_dir"] == str(run_dir)
+    _, normal = run()
+    assert len(fakes.calls) == 2 and normal["run_dir"] == str(run_dir)
+    with pytest.raises(CellError, match="unknown test setting 'tilted'"):
+        run(test_setting="tilted")
+    argv = CELL_ARGV + ["--test-setting", "challenging"]
+    assert cell_module.main(argv) == 0 and len(fakes.calls) == 2  # measured: skipped
+
+
+def test_the_cell_loader_checks_that_a_cross_setting_cell_names_its_fit(fakes):
+    path, cross = run(test_setting="challenging")
+    stored = json.loads(path.read_text())
+    edits = {
+        "fit_protocol_id 0123456789ab is not the id": {
+            "protocol": stored["protocol"] | {"fit_protocol_id": "0123456789ab"}
+        },
+        "its fit's checkpoint other.ckpt is not the checkpoint it tested": {
+            "fit": stored["fit"] | {"checkpoint": "other.ckpt"}
+        },
+        "its fit's protocol_id 0123456789ab is not": {
+            "fit": stored["fit"] | {"protocol_id": "0123456789ab"}
+        },
+        "needs trained_setting, fit_protocol_id in its protocol and its fit": {"fit": None},
+        "trained_setting challenging is the setting it was tested in": {
+            "protocol": stored["protocol"] | {"trained_setting": "challenging"}
+        },
+    }
+    for problem, edit in edits.items():
+        edited = {key: value for key, value in (stored | edit).items() if value is not None}
+        path.write_text(json.dumps(edited))
+        with pytest.raises(CellFileError, match=problem):
+            load_cell(path)
+    path.write_text(json.dumps(stored))
+    moved = Path("results/block-insertion/mira-oracle.json")
+    moved.parent.mkdir()
+    moved.write_text(json.dumps(stored))
+    with pytest.raises(CellFileError, match="holds the cell block-insertion-challenging/mira"):
+        find_records([Path("results")])
 
 
 def test_a_cell_records_the_commit_it_started_from(fakes, monkeypatch):

@@ -1,29 +1,42 @@
-"""`nerf-transporter run-cell --task T --method M [--setting S] [--imagery oracle]`: one cell of
-the results table, start to finish and resumable (README, "Results").
+"""`nerf-transporter run-cell --task T --method M [--setting S] [--test-setting S] [--imagery
+oracle]`: one cell of the results table, start to finish and resumable (README, "Results").
 
 fit (`configs/<task>[_<setting>].yaml` + `configs/model/<method>.yaml` + any `--config` overlays,
 with the budget options applied) -> the checkpoint with the best closed-loop validation success
 (the score `ModelCheckpoint(monitor="eval/success_rate")` stored in each checkpoint; rounds with
 erred episodes are never chosen, ties go to the later step, as `evaluate-checkpoints` ranks them)
 -> the first `--episodes` test seeds -> the cell JSON, written atomically to
-`<results>/<task>[-<setting>]/<method>[-oracle].json`.
+`<results>/<task>[-<setting>]/<method>[-oracle].json` (`<task>-<setting>-trained-<setting>` for a
+policy trained and tested in a setting other than Normal).
+
+`--test-setting S` (another setting than `--setting`, e.g. `challenging`) tests the fit of the cell
+`--setting` names, with the same options (`--episodes` included: it is part of the fit's protocol),
+on the first test seeds of S: the same protocol folder and run, never fitted again (fitted there
+first, exactly as that cell would, where the fit is missing or unfinished), the same validation
+rounds on the training setting and the same chosen checkpoint, tested in S (mira searches S's view
+grid), written to `<results>/<task>-<S>/<row>.json`. Its protocol is the fit's tested in S, with
+`trained_setting` and `fit_protocol_id` added, and the cell names its fit (`fit`: protocol id, run
+folder, checkpoint); `--force` then tests that checkpoint again (a fresh fit is the training
+setting's cell's `--force`).
 
 A cell's protocol is everything that decides its number but the code: task, setting, method,
 imagery, demonstrations, steps, batch size, learning rate, resolution, validation and test
 episodes, and the model's architecture (its other arguments, e.g. width and crop size, so that a
 `--config` overlay that widens the networks is another protocol). Each protocol fits in its own
-folder `<logs>/<column>/<row>/<protocol id>/version_N`, so a rerun resumes the latest run from its
-checkpoint of the highest step (wherever the folder was moved), never trains a finished fit again,
-and skips a cell whose JSON holds the same protocol (read by `evaluation/cells.py`: a cell of
-another world is an error); `--force` measures it again from a fresh fit. One command at a time
-works on a cell: it holds a lock in the protocol's folder, and a second one exits naming the
-first. Before anything runs, the folders it will write (fit runs, results, the imagery cache)
-are checked writable. A test with erred episodes writes no cell (its record stays in the run's
-`evaluation/`) and exits 1; a finished test whose cell could not be written is taken from there
-by the next run instead of testing again. `--fit-only` runs only the fit, without the closed-loop
-validation callback (a GPU machine without PyBullet); the same command without it, where PyBullet
-is, validates the unscored checkpoints closed loop, picks the best and tests it. This module drives
-`lightning fit`, so it sits beside the CLI, above the evaluation layer.
+folder `<logs>/<task>[-<setting>]/<row>/<protocol id>/version_N`, so a rerun resumes the latest run
+from its checkpoint of the highest step (wherever the folder was moved), never trains a finished
+fit again, and skips a cell whose JSON holds the same protocol (read by `evaluation/cells.py`: a
+cell of another world is an error); `--force` measures it again from a fresh fit. One command at a
+time fits and validates a protocol, and one at a time tests it in a setting: each holds a lock in
+the protocol's folder, and a second one exits naming the first (so a fit's two tests may run side
+by side once it is validated). Before anything runs, the folders it will write (fit runs,
+results, the imagery cache) are checked writable. A test with erred episodes writes no cell (its
+record stays in the run's `evaluation/`) and exits 1; a finished test whose cell could not be
+written is taken from there by the next run instead of testing again. `--fit-only` runs only the
+fit, without the closed-loop validation callback (a GPU machine without PyBullet); the same command
+without it, where PyBullet is, validates the unscored checkpoints closed loop, picks the best and
+tests it. This module drives `lightning fit`, so it sits beside the CLI, above the evaluation
+layer.
 """
 
 from __future__ import annotations
@@ -32,7 +45,6 @@ import argparse
 import contextlib
 import copy
 import fcntl
-import hashlib
 import json
 import logging
 import math
@@ -63,8 +75,10 @@ from nerf_transporter.device_info import describe_device
 from nerf_transporter.evaluation.cells import (
     CellFileError,
     column_folder,
+    cross_protocol,
     load_cell,
     load_record,
+    protocol_id,
     row_key,
 )
 from nerf_transporter.evaluation.checkpoints import (
@@ -74,7 +88,7 @@ from nerf_transporter.evaluation.checkpoints import (
     evaluate_checkpoints,
     validation_records,
 )
-from nerf_transporter.evaluation.report import TASKS, cell
+from nerf_transporter.evaluation.report import SETTINGS, TASKS, cell
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR
 from nerf_transporter.evaluation.testing import checkpoint_step, erred_episodes_text
 from nerf_transporter.methods import METHODS
@@ -84,7 +98,8 @@ CALLBACK = "SuccessRateCallback"
 CHECKPOINT = "ModelCheckpoint"
 MONITOR = "eval/success_rate"
 SEGMENTS = "fit-segments.json"  # in a run folder: one entry per fit started there
-LOCK = ".run-cell.lock"  # in a protocol's folder: held by the one run-cell working on that cell
+LOCK = ".run-cell.lock"  # in a protocol's folder: held by the one run-cell fitting or validating
+TEST_LOCK = ".run-cell-test-{setting}.lock"  # there: held by the one run-cell testing in a setting
 LOGGER = "lightning.pytorch.loggers.TensorBoardLogger"
 # model arguments outside the protocol's "model" entry (the architecture): lr, pixel_size and
 # n_rotations are protocol keys of their own; view_chunk (memory), log_images_every_n_steps
@@ -247,15 +262,17 @@ def cell_protocol(config: dict[str, Any], method: str, input_kind: str) -> dict[
     return protocol
 
 
-def protocol_id(protocol: dict[str, Any]) -> str:
-    """12 hex digits naming a protocol (its fit folder)."""
-    return hashlib.sha256(json.dumps(protocol, sort_keys=True).encode()).hexdigest()[:12]
-
-
 def cell_name(protocol: dict[str, Any]) -> tuple[str, str]:
-    """(column folder `<task>[-<setting>]`, row `<method>[-oracle]`) of a cell."""
-    column = column_folder(protocol["task"], protocol["setting"])
+    """(column folder, row `<method>[-oracle]`) of a cell (`column_folder`)."""
+    trained = protocol.get("trained_setting", protocol["setting"])
+    column = column_folder(protocol["task"], protocol["setting"], trained)
     return column, row_key(protocol["method"], protocol["imagery"])
+
+
+def fit_folder(logs: Path, fit: dict[str, Any]) -> Path:
+    """The folder of the runs of the fit protocol `fit`: `<logs>/<task>[-<setting>]/<row>/<id>`."""
+    row = row_key(fit["method"], fit["imagery"])
+    return logs / column_folder(fit["task"], fit["setting"]) / row / protocol_id(fit)
 
 
 def cell_path(results: Path, protocol: dict[str, Any]) -> Path:
@@ -264,13 +281,15 @@ def cell_path(results: Path, protocol: dict[str, Any]) -> Path:
 
 
 def stored_protocol(cell: dict[str, Any], input_kind: str) -> dict[str, Any]:
-    """A stored cell's protocol as this code reads it from the cell's resolved config, so that a
-    cell written before the protocol gained a key still matches; its recorded protocol where the
-    config cannot be read so."""
+    """A stored cell's protocol as this code reads it from the cell's resolved config (its fit's,
+    tested in the cell's setting for a cross-setting cell), so that a cell written before the
+    protocol gained a key still matches; its recorded protocol where the config cannot be read
+    so."""
     try:
-        return cell_protocol(cell["config"], cell["method"], input_kind)
+        fit = cell_protocol(cell["config"], cell["method"], input_kind)
     except (KeyError, TypeError, AttributeError, CellError):
         return cell["protocol"]
+    return cross_protocol(fit, cell["setting"]) if "trained_setting" in cell["protocol"] else fit
 
 
 def measured(path: Path, protocol: dict[str, Any], input_kind: str) -> bool:
@@ -295,19 +314,19 @@ def measured(path: Path, protocol: dict[str, Any], input_kind: str) -> bool:
 
 
 @contextlib.contextmanager
-def cell_lock(folder: Path) -> Iterator[None]:
-    """Hold the lock `folder/.run-cell.lock` while the block runs: one run-cell at a time per cell
-    (the lock goes with its process, also one killed); CellError naming the holder where another
-    command holds it."""
+def cell_lock(folder: Path, name: str = LOCK) -> Iterator[None]:
+    """Hold the lock `folder/<name>` while the block runs: one run-cell at a time per protocol
+    folder and lock (the lock goes with its process, also one killed); CellError naming the holder
+    where another command holds it."""
     folder.mkdir(parents=True, exist_ok=True)
-    with open(folder / LOCK, "a+") as file:
+    with open(folder / name, "a+") as file:
         try:
             fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             file.seek(0)
             holder = file.read().strip() or "another process"
             raise CellError(
-                f"this cell is being measured by {holder} (it holds {folder / LOCK}): one run-cell "
+                f"this cell is being measured by {holder} (it holds {folder / name}): one run-cell "
                 "at a time per cell; wait for it to end, or stop it and run again"
             ) from None
         file.seek(0)
@@ -470,6 +489,7 @@ def run_cell(
     task: str,
     method: str,
     setting: str = "normal",
+    test_setting: str | None = None,
     imagery: str | None = None,
     steps: int | None = None,
     batch_size: int | None = None,
@@ -486,12 +506,16 @@ def run_cell(
     device: str | None = None,
     fit_only: bool = False,
 ) -> tuple[Path, dict[str, Any] | None]:
-    """Run one cell (see the module's docstring). Returns (cell path, cell record); the record is
-    None where the cell was already measured under this protocol, and holds no cell (nothing
-    written) where test episodes erred (`errors` > 0). With `fit_only` (a machine without
-    PyBullet): only the fit, `without_closed_loop`; returns (run folder, None)."""
+    """Run one cell (see the module's docstring): trained in `setting`, tested in `test_setting`
+    (default: `setting`). Returns (cell path, cell record); the record is None where the cell was
+    already measured under this protocol, and holds no cell (nothing written) where test episodes
+    erred (`errors` > 0). With `fit_only` (a machine without PyBullet): only the fit,
+    `without_closed_loop`; returns (run folder, None)."""
     if method not in METHODS:
         raise CellError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+    test_setting = test_setting or setting
+    if test_setting not in SETTINGS:
+        raise CellError(f"unknown test setting {test_setting!r}; valid: {', '.join(SETTINGS)}")
     # the code this process runs (validation and test run in it): a commit made while the cell
     # runs, hours later, does not change it
     code = git_state()
@@ -512,11 +536,13 @@ def run_cell(
         val_episodes=val_episodes,
         eval_workers=eval_workers,
     )
-    protocol = cell_protocol(config, method, input_kind)
+    fit_protocol = cell_protocol(config, method, input_kind)
+    cross = test_setting != setting
+    protocol = cross_protocol(fit_protocol, test_setting) if cross else fit_protocol
     path = cell_path(results, protocol)
     if not force and measured(path, protocol, input_kind):
         return path, None
-    runs = logs.joinpath(*cell_name(protocol), protocol_id(protocol))
+    runs = fit_folder(logs, fit_protocol)
     folders = [("fit runs", runs)]
     if not fit_only:
         folders.append(("results", path.parent))
@@ -526,54 +552,61 @@ def run_cell(
             caches = {validation_cache, DEFAULT_CACHE_DIR} - {None}
             folders += [("imagery cache", Path(cache)) for cache in sorted(caches)]
     check_writable(folders)
+    device = device or ("cuda" if torch.cuda.is_available() else "cpu")
     with cell_lock(runs):
         if not force and measured(path, protocol, input_kind):
             return path, None  # measured meanwhile by the command that held the lock
-        return _measure(
-            config,
-            protocol,
-            path,
-            runs,
-            code=code,
-            overlays=overlays,
-            force=force,
-            eval_workers=eval_workers,
-            device=device or ("cuda" if torch.cuda.is_available() else "cpu"),
-            fit_only=fit_only,
-        )
-
-
-def _measure(
-    config: dict[str, Any],
-    protocol: dict[str, Any],
-    path: Path,
-    runs: Path,
-    *,
-    code: dict[str, Any],
-    overlays: list[Path] | None,
-    force: bool,
-    eval_workers: int | None,
-    device: str,
-    fit_only: bool,
-) -> tuple[Path, dict[str, Any] | None]:
-    """`run_cell` once its options are checked and its lock is held: fit (a fresh run folder the
-    fit leaves without a checkpoint is removed), validate, test (or take the finished test of a
-    cell that could not be written), write the cell."""
-    run_dir, resume = fit_run(runs, force)
-    if resume is None or checkpoint_step(resume) < protocol["steps"]:
-        with removed_if_unused([run_dir] if resume is None else []):
-            fit(without_closed_loop(config) if fit_only else config, run_dir, resume, device)
-    if fit_only:
-        return run_dir, None
-    validation = validate(run_dir, protocol, device, eval_workers)
+        # a cross-setting cell never fits afresh: its fit is the training setting's cell's
+        run_dir, resume = fit_run(runs, force and not cross)
+        if resume is None or checkpoint_step(resume) < fit_protocol["steps"]:
+            with removed_if_unused([run_dir] if resume is None else []):
+                fit(without_closed_loop(config) if fit_only else config, run_dir, resume, device)
+        if fit_only:
+            return run_dir, None
+        validation = validate(run_dir, fit_protocol, device, eval_workers)
     chosen = best_record(validation)
     if chosen is None:
         raise CellError(
             f"no checkpoint under {run_dir} has a validation round without erred episodes; see "
             "the fit's log, fix the cause and run again with --force"
         )
+    with cell_lock(runs, TEST_LOCK.format(setting=test_setting)):
+        if not force and measured(path, protocol, input_kind):
+            return path, None  # measured meanwhile by the command that held the lock
+        return _test(
+            config,
+            protocol,
+            path,
+            run_dir,
+            chosen,
+            validation,
+            code=code,
+            overlays=overlays,
+            retest=force,
+            eval_workers=eval_workers,
+            device=device,
+        )
+
+
+def _test(
+    config: dict[str, Any],
+    protocol: dict[str, Any],
+    path: Path,
+    run_dir: Path,
+    chosen: dict[str, Any],
+    validation: list[dict[str, Any]],
+    *,
+    code: dict[str, Any],
+    overlays: list[Path] | None,
+    retest: bool,
+    eval_workers: int | None,
+    device: str,
+) -> tuple[Path, dict[str, Any] | None]:
+    """`run_cell` once its fit is validated and its test lock is held: test the `chosen`
+    checkpoint in the protocol's setting (or take the finished test of a cell that could not be
+    written, unless `retest`), write the cell."""
     checkpoint = Path(chosen["checkpoint"])
-    record = finished_test(run_dir, checkpoint, protocol)
+    record = None if retest else finished_test(run_dir, checkpoint, protocol)
     if record is not None:
         test_wall_s = record["wall_s"]
     else:
@@ -583,6 +616,7 @@ def _measure(
             "test",
             protocol["test_episodes"],
             only=[checkpoint],
+            setting=protocol["setting"],
             device=torch.device(device),
             workers=eval_workers,
         )
@@ -625,6 +659,17 @@ def _measure(
         "fit_git": [segment["git"] for segment in segments],
         "world": record["world"],
         "run_dir": str(run_dir),
+        **(
+            {
+                "fit": {
+                    "protocol_id": protocol["fit_protocol_id"],
+                    "run_dir": str(run_dir),
+                    "checkpoint": chosen["checkpoint"],
+                }
+            }
+            if "trained_setting" in protocol
+            else {}
+        ),
         "config": config,
         "overlays": [str(overlay) for overlay in overlays or []],
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
@@ -659,13 +704,22 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="nerf-transporter run-cell",
         description="One cell of the results table: fit, pick the checkpoint by closed-loop "
-        "validation success, test on the first test seeds, write the cell JSON. Resumable; a "
-        "cell already measured under the same protocol is skipped.",
+        "validation success, test on the first test seeds (of --test-setting, where given), write "
+        "the cell JSON. Resumable; a cell already measured under the same protocol is skipped.",
         formatter_class=HelpFormatter,
     )
     parser.add_argument("--task", required=True, choices=TASKS)
     parser.add_argument("--method", required=True, choices=list(METHODS))
-    parser.add_argument("--setting", default="normal", choices=("normal", "challenging", "flat"))
+    parser.add_argument(
+        "--setting", default="normal", choices=SETTINGS, help="the setting trained (and tested) in"
+    )
+    parser.add_argument(
+        "--test-setting",
+        choices=SETTINGS,
+        help="test the fit of the --setting cell (the same options; fitted first where it is "
+        "missing or unfinished, never again) in this setting, as a cell of its own "
+        "(results/<task>-<setting>/), e.g. challenging (default: --setting)",
+    )
     parser.add_argument(
         "--imagery",
         choices=("nerf", "oracle"),
@@ -700,6 +754,7 @@ def main(argv: list[str] | None = None) -> int:
             task=args.task,
             method=args.method,
             setting=args.setting,
+            test_setting=args.test_setting,
             imagery=args.imagery,
             steps=args.steps,
             batch_size=args.batch_size,

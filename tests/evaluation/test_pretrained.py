@@ -60,6 +60,7 @@ def results_of(checkpoint: Path, seeds: list[int]) -> Path:
         [result.to_json() for result in results],
         method=model,
         spec=spec,
+        trained_setting=datamodule.setting,
         split="test",
         checkpoint=str(checkpoint),
         global_step=2,

@@ -7,14 +7,16 @@ import cv2
 import pytest
 
 from nerf_transporter.cli import main as cli_main
+from nerf_transporter.evaluation.cells import column_folder, cross_protocol
 from nerf_transporter.evaluation.metrics import wilson_interval
 from nerf_transporter.evaluation.report import README_END, README_START, table_plot
 from nerf_transporter.evaluation.report import main as report_main
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
 
-def _write(root, run, method, task, setting, successes, episodes, created, name=None):
-    """A test record as `lightning test` writes it (the fields the report reads)."""
+def _write(root, run, method, task, setting, successes, episodes, created, name=None, trained=None):
+    """A test record as `lightning test` writes it (the fields the report reads; without the
+    setting trained in unless `trained`, as records written before it was recorded)."""
     path = root / run / "checkpoints" / (name or "results.json")
     path.parent.mkdir(parents=True)
     low, high = wilson_interval(successes, episodes)
@@ -31,7 +33,7 @@ def _write(root, run, method, task, setting, successes, episodes, created, name=
         "ci_high": high,
         "created": created,
     }
-    path.write_text(json.dumps(record))
+    path.write_text(json.dumps(record | ({"trained_setting": trained} if trained else {})))
 
 
 @pytest.fixture
@@ -78,6 +80,7 @@ def logs(tmp_path):
         100,
         "2024-01-01T00:00:00",
         name="results-challenging.json",  # a Normal-trained model tested in Challenging
+        trained="normal",
     )
     _write(
         root,
@@ -93,19 +96,19 @@ def logs(tmp_path):
 
 
 EXPECTED = """\
-| method | block-insertion | place-red-in-green | hanging-disks | stacking-kits | place-red-in-green Challenging | block-insertion Flat |
-| --- | --- | --- | --- | --- | --- | --- |
-| mira (ours) | 80% (20, 58-92) |  |  |  | 50% (100, 40-60) |  |
-| paper: its method | 80% | 86% | 40% | 32% | 50% |  |
-| mira, oracle imagery |  |  |  |  |  |  |
-| Transporter-SE(2) | 25% (20, 11-47) |  |  |  |  | 100% (20, 84-100) |
-| paper: Transporter-SE(2) | 21% | 74% | 32% | 18% | 18% |  |
-| Transporter-SE(3) |  |  |  |  |  |  |
-| paper: Transporter-SE(3) | 20% | 77% | 32% | 16% | 20% |  |
-| Form2Fit |  |  |  |  |  |  |
-| paper: Form2Fit | 0% | 79% | 1% | 4% | 30% |  |
-| GT-State MLP |  |  |  |  |  |  |
-| paper: GT-State MLP | 0% | 1% | 0% | 0% | 1% |  |
+| method | block-insertion | block-insertion Challenging | place-red-in-green | place-red-in-green Challenging | hanging-disks | hanging-disks Challenging | stacking-kits | stacking-kits Challenging | block-insertion Flat (trained Flat) |
+| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |
+| mira (ours) | 80% (20, 58-92) / - |  |  | 50% (100, 40-60) / - |  |  |  |  |  |
+| paper: its method | 80% |  | 86% | 50% | 40% |  | 32% |  |  |
+| mira, oracle imagery |  |  |  |  |  |  |  |  |  |
+| Transporter-SE(2) | 25% (20, 11-47) / - |  |  |  |  |  |  |  | 100% (20, 84-100) / - |
+| paper: Transporter-SE(2) | 21% |  | 74% | 18% | 32% |  | 18% |  |  |
+| Transporter-SE(3) |  |  |  |  |  |  |  |  |  |
+| paper: Transporter-SE(3) | 20% |  | 77% | 20% | 32% |  | 16% |  |  |
+| Form2Fit |  |  |  |  |  |  |  |  |  |
+| paper: Form2Fit | 0% |  | 79% | 30% | 1% |  | 4% |  |  |
+| GT-State MLP |  |  |  |  |  |  |  |  |  |
+| paper: GT-State MLP | 0% |  | 1% | 1% | 0% |  | 0% |  |  |
 """
 
 
@@ -118,10 +121,11 @@ def test_report_csv(logs, capsys):
     assert report_main([str(logs), "--csv"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0] == (
-        "method,block-insertion,place-red-in-green,hanging-disks,stacking-kits,"
-        "place-red-in-green Challenging,block-insertion Flat"
+        "method,block-insertion,block-insertion Challenging,place-red-in-green,"
+        "place-red-in-green Challenging,hanging-disks,hanging-disks Challenging,stacking-kits,"
+        "stacking-kits Challenging,block-insertion Flat (trained Flat)"
     )
-    assert lines[4] == 'Transporter-SE(2),"25% (20, 11-47)",,,,,"100% (20, 84-100)"'
+    assert lines[4] == 'Transporter-SE(2),"25% (20, 11-47) / -",,,,,,,,"100% (20, 84-100) / -"'
 
 
 CPU = {"cpu": "AMD EPYC", "threads": 1, "gpu": None}
@@ -138,18 +142,33 @@ def write_cell(
     validation=None,
     overlays=(),
     fit=CPU,
+    trained=None,
+    strict=None,
 ):
-    """A cell as run-cell writes it (the fields the report reads, its protocol and overlays)."""
-    column = task if setting == "normal" else f"{task}-{setting}"
+    """A cell as run-cell writes it (the fields the report reads, its protocol and overlays),
+    trained in `trained` (default: the setting it is tested in; another: a cross-setting cell
+    naming its fit), with `strict` strict 6-DoF successes where given."""
+    trained = trained or setting
+    column = column_folder(task, setting, trained)
     low, high = wilson_interval(successes, episodes)
     method = row.removesuffix("-oracle")
-    protocol = {"task": task, "setting": setting, "method": method, "imagery": imagery}
+    protocol = {"task": task, "setting": trained, "method": method, "imagery": imagery}
     protocol |= {"steps": 2000, "batch_size": 1, "lr": 1e-4, "validation_every": 500}
     protocol |= {"validation_episodes": 10, "test_episodes": episodes}
-    record = {
+    checkpoint = {"step": 2000, "path": "logs/cells/run/version_0/checkpoints/step002000.ckpt"}
+    extra = {}
+    if trained != setting:
+        protocol = cross_protocol(protocol, setting)
+        fit_run = {"protocol_id": protocol["fit_protocol_id"], "run_dir": "logs/cells/run"}
+        extra["fit"] = fit_run | {"checkpoint": checkpoint["path"]}
+    if strict is not None:
+        strict_low, strict_high = wilson_interval(strict, episodes)
+        extra |= {"strict_successes": strict, "strict_ci_low": strict_low}
+        extra |= {"strict_ci_high": strict_high}
+    record = extra | {
         "protocol": protocol,
         "world": world_fingerprint(),
-        "checkpoint": {"step": 2000},
+        "checkpoint": checkpoint,
         "validation": [{"step": step, "success_rate": rate} for step, rate in validation or ()],
         "task": task,
         "setting": setting,
@@ -191,20 +210,21 @@ def test_cells_of_a_results_folder_fill_their_rows_the_plot_and_the_readme(tmp_p
     plot = tmp_path / "results" / "table1.png"
     assert report_main([str(results), "--readme", str(readme), "--plot", str(plot)]) == 0
     rows = capsys.readouterr().out.splitlines()[2:]
-    assert rows[0].startswith("| mira (ours) | 81% (100, 72-87) |  |")
-    assert rows[2].startswith("| mira, oracle imagery | 90% (100, 83-94) |  |")
-    assert rows[7].endswith("| 30% (100, 22-40) |")  # Form2Fit, place-red-in-green Challenging
+    assert rows[0].startswith("| mira (ours) | 81% (100, 72-87) / - |  |")
+    assert rows[2].startswith("| mira, oracle imagery | 90% (100, 83-94) / - |  |")
+    # Form2Fit, place-red-in-green trained and tested Challenging: the optional ninth column
+    assert rows[7].endswith("|  | 30% (100, 22-40) / - |")
     text = readme.read_text()
     assert text.startswith(f"# title\n\n{README_START}\n") and text.endswith(
         f"{README_END}\n\nthe rest\n"
     )
-    assert "old text" not in text and "3 of 30 cells measured" in text
-    assert "| mira, oracle imagery | 90% (100, 83-94) |" in text
+    assert "old text" not in text and "2 of 48 cells measured" in text
+    assert "| mira, oracle imagery | 90% (100, 83-94) / - |" in text
     assert "![results table as bars](results/table1.png)" in text
     assert (
         "- AMD EPYC (2 cells): mira (ours) on block-insertion; mira, oracle imagery on "
         "block-insertion\n- NVIDIA H100 80GB HBM3 (1 cell): Form2Fit on place-red-in-green "
-        "Challenging\n"
+        "Challenging (trained Challenging)\n"
     ) in text
     budget = "--steps 2000 --batch-size 1 --lr 0.0001 --val-every 500 --val-episodes 10"
     assert (
@@ -230,8 +250,8 @@ def test_an_empty_results_folder_gives_the_paper_rows_and_says_what_to_run(tmp_p
     assert report_main([str(tmp_path), "--readme", str(readme)]) == 0
     captured = capsys.readouterr()
     assert "run-cell" in captured.err and "lightning test" in captured.err
-    assert "| paper: its method | 80% | 86% | 40% | 32% | 50% |" in captured.out
-    assert "| mira (ours) |  |  |  |  |  |" in captured.out
+    assert "| paper: its method | 80% |  | 86% | 50% | 40% |  | 32% |  |" in captured.out
+    assert "| mira (ours) |  |  |  |  |  |  |  |  |\n" in captured.out
     text = readme.read_text()
     assert "no cell has been measured yet" in text and "table1.png" not in text
 
@@ -358,7 +378,7 @@ def test_a_test_record_under_a_folder_of_cells_is_never_taken_for_a_cell(tmp_pat
     _write(results, "hanging-disks", "form2fit", "hanging-disks", "normal", 2, 2, "2099-01-01")
     assert report_main([str(results)]) == 0
     out, err = capsys.readouterr()
-    assert "| mira (ours) | 77% (100, 68-84) |" in out
+    assert "| mira (ours) | 77% (100, 68-84) / - |" in out
     assert "| Form2Fit |  |  |  |" in out  # its stray test record is no cell either
     assert "left out 2 test record(s)" in err and str(stray) in err
     misplaced = results / "block-insertion" / "form2fit.json"
@@ -375,18 +395,18 @@ def test_an_archived_world_renders_under_its_own_heading_never_in_the_table(tmp_
     readme = tmp_path / "README.md"
     readme.write_text(f"{README_START}\n{README_END}\n")
     assert report_main([str(results), "--readme", str(readme)]) == 0
-    current, archived = capsys.readouterr().out.split(f"\nArchived world {old} ({archive}: 1 of 30")
+    current, archived = capsys.readouterr().out.split(f"\nArchived world {old} ({archive}: 1 cells")
     assert "| mira (ours) |  |" in current and "9% (100, 5-16)" in current
-    assert "| mira (ours) | 77% (100, 68-84) |" in archived and "9% (100" not in archived
+    assert "| mira (ours) | 77% (100, 68-84) / - |" in archived and "9% (100" not in archived
     text = readme.read_text()
     assert (
-        f"1 of 30 cells measured in `results/`, in this checkout's world `{world_fingerprint()}`"
+        f"1 of 48 cells measured in `results/`, in this checkout's world `{world_fingerprint()}`"
         in text
     )
     current, archived = text.split(f"#### Archived world `{old}`")
     assert "| mira (ours) |  |" in current and "77% (100, 68-84)" not in current
     assert f"kept in `results/archive/world-{old}/`" in archived
-    assert "| mira (ours) | 77% (100, 68-84) |" in archived
+    assert "| mira (ours) | 77% (100, 68-84) / - |" in archived
     # the archive folder itself, and a cell of one world in another's archive
     assert report_main([str(archive)]) == 0
     assert f"Archived world {old}" in capsys.readouterr().out
@@ -394,3 +414,75 @@ def test_an_archived_world_renders_under_its_own_heading_never_in_the_table(tmp_
     assert report_main([str(results)]) == 2
     err = capsys.readouterr().err
     assert f"lies in the archive of world {old} but was measured in world fedcba9876543210" in err
+
+
+def test_the_table_holds_both_settings_both_measures_and_the_paper_under_its_labels(
+    tmp_path, capsys
+):
+    results = tmp_path / "results"
+    write_cell(results, "mira", "block-insertion", "normal", 81, 100, "nerf", strict=70)
+    write_cell(results, "mira", "block-insertion", "challenging", 40, 100, "nerf", trained="normal")
+    readme = tmp_path / "README.md"
+    readme.write_text(f"{README_START}\n{README_END}\n")
+    plot = tmp_path / "table1.png"
+    assert report_main([str(results), "--readme", str(readme), "--plot", str(plot)]) == 0
+    header, _, mira, paper = capsys.readouterr().out.splitlines()[:4]
+    assert header == (
+        "| method | block-insertion | block-insertion Challenging | place-red-in-green | "
+        "place-red-in-green Challenging | hanging-disks | hanging-disks Challenging | "
+        "stacking-kits | stacking-kits Challenging |"
+    )
+    assert mira == (
+        "| mira (ours) | 81% (100, 72-87) / 70% (100, 60-78) | 40% (100, 31-50) / - "
+        "|  |  |  |  |  |  |"
+    )
+    # the paper's Challenging column stands under ours of its label: trained Normal
+    assert paper == "| paper: its method | 80% |  | 86% | 50% | 40% |  | 32% |  |"
+    text = readme.read_text()
+    assert (
+        "2 of 48 cells measured" in text and 'reads "under out-of-distribution rotations"' in text
+    )
+    assert (
+        "    nerf-transporter run-cell --task block-insertion --test-setting challenging "
+        "--method mira --steps 2000"
+    ) in text
+    # the bars of both of mira's cells, each in its task's Normal or Challenging group
+    image = cv2.cvtColor(cv2.imread(str(plot)), cv2.COLOR_BGR2RGB)
+    empty = table_plot([])
+    assert image.shape == empty.shape
+    mira_colour = empty[51, 67]
+    drawn = (image[70:] == mira_colour).all(axis=2).any(axis=0).nonzero()[0]
+    group = (image.shape[1] - 80) / 8
+    assert sorted({int((x - 60) // group) for x in drawn}) == [0, 1]
+
+    write_cell(results, "mira", "place-red-in-green", "challenging", 99, 100, "nerf")
+    assert report_main([str(results)]) == 0
+    header, _, mira, paper = capsys.readouterr().out.splitlines()[:4]
+    assert header.endswith(
+        "| stacking-kits Challenging | place-red-in-green Challenging (trained Challenging) |"
+    )
+    assert mira.endswith("|  | 99% (100, 95-100) / - |") and paper.endswith("| 32% |  |  |")
+
+
+def test_a_cell_trained_and_tested_challenging_lies_in_its_own_column_folder(tmp_path, capsys):
+    """Apart from the Challenging column of a Normal fit; an archived world's, written before,
+    also where it lay then."""
+    results = tmp_path / "results"
+    archive = results / "archive" / f"world-{world_fingerprint()}"
+    for root in (results, archive):
+        write_cell(root, "form2fit", "place-red-in-green", "challenging", 30, 100)
+    moved = archive / "place-red-in-green-challenging"
+    (archive / "place-red-in-green-challenging-trained-challenging").rename(moved)
+    assert report_main([str(results)]) == 0
+    current, archived = capsys.readouterr().out.split("\nArchived world")
+    for table in (current, archived):
+        assert "| place-red-in-green Challenging (trained Challenging) |" in table
+        assert table.splitlines()[-4].endswith("|  | 30% (100, 22-40) / - |")  # Form2Fit
+    (results / "place-red-in-green-challenging-trained-challenging").rename(
+        results / "place-red-in-green-challenging"
+    )
+    assert report_main([str(results)]) == 2
+    assert (
+        "holds the cell place-red-in-green-challenging-trained-challenging/form2fit.json"
+        in capsys.readouterr().err
+    )

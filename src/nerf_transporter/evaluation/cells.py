@@ -3,7 +3,11 @@
 `report`, `compare-cells`, `failures` and `run-cell`'s skip check read them here. A cell is what
 `run-cell` writes (`<results>/<column>/<row>.json`, with its `protocol`); a test record is what
 `lightning test` (`results-<checkpoint>.json`) and `evaluate-checkpoints --split test`
-(`<run>/evaluation/<checkpoint>-test-<setting>.json`) write. Either is refused, naming the file
+(`<run>/evaluation/<checkpoint>-test-<setting>.json`) write. A cell tested in another setting than
+its policy was trained in (`run-cell --test-setting`) names its fit: its protocol holds
+`trained_setting` and `fit_protocol_id` (the id of the protocol it was fitted under: its own, with
+the training setting), and its `fit` the same id, the fit's run folder and the tested checkpoint,
+which must be the cell's. Either file is refused, naming the file
 and the problem, where a field has the wrong type, the counts disagree (successes <= episodes,
 the counts of its episode records, the Wilson interval recomputed; the same for the strict 6-DoF
 count `strict_successes` where present), an outcome is not a real boolean or one of the outcome
@@ -20,6 +24,7 @@ cell of the table. The archived worlds below a folder come apart, one `Archive` 
 from __future__ import annotations
 
 import fnmatch
+import hashlib
 import json
 import math
 import re
@@ -48,9 +53,46 @@ def row_key(method: str, imagery: str | None) -> str:
     return f"{method}-oracle" if imagery == "oracle" else method
 
 
-def column_folder(task: str, setting: str) -> str:
-    """The folder of a column's cells under `results/`, `<task>[-<setting>]`."""
-    return task if setting == "normal" else f"{task}-{setting}"
+def column_folder(task: str, setting: str, trained: str = "normal") -> str:
+    """The folder of a column's cells under `results/`, `<task>[-<setting>][-trained-<trained>]`
+    (tested in `setting`, trained in `trained`; the suffix only for a policy not trained Normal),
+    and of a fit's runs under `logs/cells/` (`setting`: the one it trains in)."""
+    folder = task if setting == "normal" else f"{task}-{setting}"
+    return folder if trained == "normal" else f"{folder}-trained-{trained}"
+
+
+def trained_setting(record: dict[str, Any]) -> str:
+    """The setting a record's policy was trained in: its protocol's, else its test record's,
+    else (records written before either said) the setting it was tested in."""
+    protocol = record.get("protocol") or {}
+    return protocol.get("trained_setting", record.get("trained_setting", record["setting"]))
+
+
+# a cross-setting cell's protocol keys beyond those of its fit's protocol
+CROSS_KEYS = ("trained_setting", "fit_protocol_id")
+
+
+def protocol_id(protocol: dict[str, Any]) -> str:
+    """12 hex digits naming a protocol (its fit folder)."""
+    return hashlib.sha256(json.dumps(protocol, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def cross_protocol(fit: dict[str, Any], test_setting: str) -> dict[str, Any]:
+    """The protocol of a cell testing the policy fitted under the protocol `fit` in
+    `test_setting`: the fit's, tested there, naming the fit's setting and protocol id."""
+    return fit | {
+        "setting": test_setting,
+        "trained_setting": fit["setting"],
+        "fit_protocol_id": protocol_id(fit),
+    }
+
+
+def fit_protocol(protocol: dict[str, Any]) -> dict[str, Any]:
+    """The protocol a cell's policy was fitted under: its own, or a cross-setting cell's fit's."""
+    if "trained_setting" not in protocol:
+        return protocol
+    fit = {key: value for key, value in protocol.items() if key not in CROSS_KEYS}
+    return fit | {"setting": protocol["trained_setting"]}
 
 
 # a field's kind -> (test, what it is called); a kind ending in "?" also takes null
@@ -79,6 +121,7 @@ RECORD_FIELDS = {
 }
 RECORD_OPTIONAL = {
     "imagery": "str?",
+    "trained_setting": "str",
     "split": "str",
     "created": "str",
     "episode_results": "list",
@@ -99,6 +142,7 @@ CELL_OPTIONAL = {
     "config": "dict",
     "test_seeds": "list",
     "git": "dict?",
+    "fit": "dict",
 }
 PROTOCOL_FIELDS = {"task": "str", "setting": "str", "method": "str"}
 PROTOCOL_OPTIONAL = {
@@ -110,7 +154,10 @@ PROTOCOL_OPTIONAL = {
     "validation_episodes": "int",
     "test_episodes": "int",
     "model": "dict",
+    "trained_setting": "str",
+    "fit_protocol_id": "str",
 }
+FIT_FIELDS = {"protocol_id": "str", "run_dir": "str", "checkpoint": "str"}
 TEST_RECORD_FIELDS = {"split": "str"}
 TEST_RECORD_OPTIONAL = {"checkpoint": "str?", "global_step": "int?"}
 EPISODE_FIELDS = {"seed": "int", "success": "bool"}
@@ -250,6 +297,45 @@ def _check_cell(record: dict[str, Any], where: str) -> None:
         _check_fields(fit, {}, {"cpu": "str?", "gpu": "str?"}, f"{where}: machine.fit[{index}]")
     if not all(isinstance(overlay, str) for overlay in record.get("overlays", [])):
         raise CellFileError(f"{where}: overlays {record['overlays']} are not config paths")
+    _check_fit(record, where)
+
+
+def _check_fit(record: dict[str, Any], where: str) -> None:
+    """A cross-setting cell naming its fit (see the module docstring); a cell of one setting
+    naming none."""
+    protocol = record["protocol"]
+    cross = [key for key in CROSS_KEYS if key in protocol]
+    if not cross:
+        if "fit" in record:
+            raise CellFileError(f"{where} names a fit, but its protocol has no trained_setting")
+        return
+    if len(cross) < len(CROSS_KEYS) or "fit" not in record:
+        raise CellFileError(
+            f"{where}: a cell tested on another setting than it was trained on needs "
+            f"{', '.join(CROSS_KEYS)} in its protocol and its fit"
+        )
+    if protocol["trained_setting"] == protocol["setting"]:
+        raise CellFileError(
+            f"{where}: trained_setting {protocol['setting']} is the setting it was tested in"
+        )
+    expected = protocol_id(fit_protocol(protocol))
+    if protocol["fit_protocol_id"] != expected:
+        raise CellFileError(
+            f"{where}: fit_protocol_id {protocol['fit_protocol_id']} is not the id of the protocol "
+            f"it names with trained_setting {protocol['trained_setting']} ({expected})"
+        )
+    fit = record["fit"]
+    _check_fields(fit, FIT_FIELDS, {}, f"{where}: fit")
+    if fit["protocol_id"] != expected:
+        raise CellFileError(
+            f"{where}: its fit's protocol_id {fit['protocol_id']} is not its protocol's "
+            f"fit_protocol_id {expected}"
+        )
+    if fit["checkpoint"] != record["checkpoint"].get("path"):
+        raise CellFileError(
+            f"{where}: its fit's checkpoint {fit['checkpoint']} is not the checkpoint it tested "
+            f"({record['checkpoint'].get('path')})"
+        )
 
 
 def _check_world(record: dict[str, Any], where: str, world: str, archived: bool) -> None:
@@ -323,11 +409,17 @@ def load_cell(path: Path, world: str | None = None) -> dict[str, Any]:
     return _checked(record, path, world)
 
 
-def _placed(record: dict[str, Any], path: Path) -> dict[str, Any]:
-    """`record` where it lies where run-cell writes its cell (`<column>/<row>.json`)."""
-    column = column_folder(record["task"], record["setting"])
+def _placed(record: dict[str, Any], path: Path, archived: bool) -> dict[str, Any]:
+    """`record` where it lies where run-cell writes its cell (`<column>/<row>.json`); in an
+    archived world also a cell trained and tested in one setting under `<task>-<setting>`, as
+    run-cell wrote it before a column was named by its training setting too."""
+    task, setting, trained = record["task"], record["setting"], trained_setting(record)
+    column = column_folder(task, setting, trained)
     row = row_key(record["method"], record.get("imagery"))
-    if (path.parent.name, path.stem) != (column, row):
+    folders = (
+        {column, column_folder(task, setting)} if archived and trained == setting else {column}
+    )
+    if path.parent.name not in folders or path.stem != row:
         raise CellFileError(
             f"{path} holds the cell {column}/{row}.json: a cell is read only where run-cell "
             "writes it"
@@ -390,7 +482,9 @@ def find_records(roots: list[Path]) -> Found:
                 if world is not None or not path.is_relative_to(folder / ARCHIVE)
             )
             if cells or world is not None:
-                records = [_placed(load_cell(path, world), path) for path in cells]
+                records = [
+                    _placed(load_cell(path, world), path, world is not None) for path in cells
+                ]
                 found.left_out += tests
             else:
                 records = [load_record(path) for path in tests]

@@ -218,6 +218,7 @@ def evaluate_checkpoints(
                 [result.to_json() for result in results],
                 method=model,
                 spec=spec,
+                trained_setting=datamodule.setting,
                 split=split,
                 checkpoint=str(path),
                 global_step=step,

@@ -22,6 +22,7 @@ from nerf_transporter.evaluation.metrics import paired_comparison
 from nerf_transporter.evaluation.report import (
     cell,
     column_name,
+    column_of,
     fit_machine_names,
     markdown,
     seed_outcomes,
@@ -46,7 +47,7 @@ def load_tested(paths: list[Path]) -> list[dict]:
 
 def comparison_table(cells: list[dict]) -> tuple[list[str], list[list[str]]]:
     """The first cell, then each other one against it on their common test seeds."""
-    tasks = {(record["task"], record["setting"]) for record in cells}
+    tasks = {column_of(record) for record in cells}
     if len(tasks) > 1:
         columns = ", ".join(sorted(column_name(*task) for task in tasks))
         raise ValueError(f"the cells belong to different columns ({columns}): compare one column")

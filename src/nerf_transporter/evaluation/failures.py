@@ -44,11 +44,12 @@ import numpy as np
 from nerf_transporter import geometry
 from nerf_transporter.atomic import write_json
 from nerf_transporter.console import HelpFormatter, progress_bar
-from nerf_transporter.evaluation.cells import find_records, load_cell, row_key
+from nerf_transporter.evaluation.cells import find_records, load_cell, row_key, trained_setting
 from nerf_transporter.evaluation.metrics import paired_comparison
 from nerf_transporter.evaluation.report import (
     METHODS,
     column_name,
+    column_of,
     in_table_order,
     markdown,
     seed_outcomes,
@@ -209,6 +210,7 @@ def summary(record: Mapping[str, Any], diagnoses: list[dict[str, Any]]) -> dict[
         "path": record.get("path"),
         "task": record["task"],
         "setting": record["setting"],
+        "trained_setting": trained_setting(record),
         "row": row_key(record["method"], record.get("imagery")),
         "episodes": len(diagnoses),
         "classes": dict(classes),
@@ -272,7 +274,7 @@ def summary_table(summaries: list[dict[str, Any]]) -> tuple[list[str], list[list
         motion_text = "; ".join(f"{count} {name}" for name, count in sorted(motion.items()))
         rows.append(
             [
-                column_name(entry["task"], entry["setting"]),
+                column_name(entry["task"], entry["setting"], entry["trained_setting"]),
                 METHODS.get(entry["row"], entry["row"]),
                 str(entry["episodes"]),
                 f"{classes.get('success', 0)} ({entry['successes_aimed_off']})",
@@ -297,7 +299,7 @@ def tilt_table(summaries: list[dict[str, Any]]) -> tuple[list[str], list[list[st
     header = ["column", "method", *(f"target tilt {name} deg" for name in bins)]
     rows = [
         [
-            column_name(entry["task"], entry["setting"]),
+            column_name(entry["task"], entry["setting"], entry["trained_setting"]),
             METHODS.get(entry["row"], entry["row"]),
             *("{}/{}".format(*entry["success_by_target_tilt"][name]) for name in bins),
         ]
@@ -314,18 +316,17 @@ def paired_table(records: list[dict[str, Any]]) -> tuple[list[str], list[list[st
     left out): seeds both, only mira, only the other, neither succeeded on, exact McNemar p."""
     header = ["column", "mira against", "seeds", "both", "mira only", "other only", "neither", "p"]
     outcomes = {
-        (r["task"], r["setting"], row_key(r["method"], r.get("imagery"))): seed_outcomes(r)
-        for r in records
+        (*column_of(r), row_key(r["method"], r.get("imagery"))): seed_outcomes(r) for r in records
     }
     rows = []
-    for (task, setting, row), other in outcomes.items():
-        mira = outcomes.get((task, setting, "mira"))
+    for (*column, row), other in outcomes.items():
+        mira = outcomes.get((*column, "mira"))
         if row == "mira" or mira is None:
             continue
         paired = paired_comparison(mira, other)
         rows.append(
             [
-                column_name(task, setting),
+                column_name(*column),
                 METHODS.get(row, row),
                 *(str(paired[key]) for key in PAIRED_COUNTS),
                 f"{paired['p_value']:.2g}",

@@ -233,6 +233,7 @@ def try_policy(
         [result.to_json() for result in results],
         method=model,
         spec=spec,
+        trained_setting=datamodule.setting,
         split="test",
         checkpoint=str(path),
         global_step=checkpoint_step(path),

@@ -5,10 +5,14 @@ Reads the records under the given directories (`evaluation/cells.py`, which chec
 cells `run-cell` writes (`<root>/<column>/<row>.json`), or, in a folder without cells (`logs/`),
 every `results*.json` (`lightning test`, one per tested checkpoint, anywhere below); a test record
 under a folder of cells is left out, named on stderr. It prints one row per method (`mira` with
-oracle imagery is a row of its own) and one column per task/setting; a cell reads "rate% (n, CI)"
-with the 95% Wilson interval in percent, and is empty where no run exists. Where several records
-exist for one cell, a cell outranks a test record, then the newest wins. Below each of our rows,
-the paper's Table 1 value of that method (`evaluation/paper.py`). The cells of an earlier world,
+oracle imagery is a row of its own) and one column per task, setting tested in and setting trained
+in: the eight of the table (each task trained Normal, tested Normal and Challenging), then any other
+where records exist (place-red-in-green trained and tested Challenging, the optional ninth). A cell
+reads "success / strict 6-DoF success", each "rate% (n, CI)" with the 95% Wilson interval in
+percent ("-" for a record without the strict check), and is empty where no run exists. Where
+several records exist for one cell, a cell outranks a test record, then the newest wins. Below each
+of our rows, the paper's Table 1 value of that method under the column its table labels it by
+(`evaluation/paper.py`; `PAPER_NOTE` on reading its caption). The cells of an earlier world,
 kept under `<root>/archive/world-<fingerprint>/`, follow in a table of their own under the heading
 "Archived world <fingerprint>", never in this world's table.
 `--plot` draws the table as bars with their intervals and the paper's values as markers;
@@ -32,8 +36,15 @@ import numpy as np
 
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.drawing import bar_chart, line_chart
-from nerf_transporter.evaluation.cells import ARCHIVE, Archive, column_folder, find_records, row_key
-from nerf_transporter.evaluation.paper import PAPER_COLUMNS, PAPER_SUCCESS
+from nerf_transporter.evaluation.cells import (
+    ARCHIVE,
+    Archive,
+    column_folder,
+    find_records,
+    row_key,
+    trained_setting,
+)
+from nerf_transporter.evaluation.paper import PAPER_SUCCESS
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
 # rows of the table, in order: the method's name, or `<method>-oracle` for oracle imagery
@@ -50,8 +61,19 @@ PAPER_LABELS = {method: f"paper: {METHODS[method]}" for method in PAPER_SUCCESS}
 }
 TASKS = ("block-insertion", "place-red-in-green", "hanging-disks", "stacking-kits")
 SETTINGS = ("normal", "challenging", "flat")
-# the columns of the paper's Table 1, always shown; other task/settings follow when results exist
-COLUMNS = PAPER_COLUMNS
+Column = tuple[str, str, str]  # (task, setting tested in, setting trained in)
+# the table's columns, always shown: each task trained Normal, tested Normal and Challenging; other
+# columns (a policy trained in another setting) follow where records exist
+COLUMNS: tuple[Column, ...] = tuple(
+    (task, setting, "normal") for task in TASKS for setting in ("normal", "challenging")
+)
+PAPER_NOTE = (
+    "The paper's Table 1 labels four columns Normal and place-red-in-green Challenging, and its "
+    'values stand under the columns of those labels. Its caption, though, reads "under '
+    "out-of-distribution rotations\", and every result MIRA's code release shows is an "
+    "out-of-distribution (`-ood`) run, so its Normal columns may be tests on Challenging poses: "
+    "read them against both of ours."
+)
 README_START = "<!-- results table: written by `nerf-transporter report results/ --readme README.md`; do not edit -->"
 README_END = "<!-- end of the results table -->"
 
@@ -61,8 +83,23 @@ def seed_outcomes(record: dict) -> dict[int, bool]:
     return {e["seed"]: e["success"] for e in record["episode_results"] if not e.get("error")}
 
 
-def column_name(task: str, setting: str) -> str:
-    return task if setting == "normal" else f"{task} {setting.capitalize()}"
+def column_name(task: str, setting: str, trained: str = "normal") -> str:
+    """A column's header: the task, the setting tested in unless Normal, and the setting trained
+    in unless Normal ("place-red-in-green Challenging (trained Challenging)")."""
+    name = task if setting == "normal" else f"{task} {setting.capitalize()}"
+    return name if trained == "normal" else f"{name} (trained {trained.capitalize()})"
+
+
+def column_of(record: dict) -> Column:
+    """The column of a record: (task, setting tested in, setting trained in)."""
+    return record["task"], record["setting"], trained_setting(record)
+
+
+def paper_value(method: str, column: Column) -> int | None:
+    """The paper's Table 1 success % of a method under a column: where its table labels the
+    column's task and setting (trained Normal, as its Challenging is defined), else None."""
+    task, setting, trained = column
+    return PAPER_SUCCESS.get(method, {}).get((task, setting)) if trained == "normal" else None
 
 
 def cell(record: dict) -> str:
@@ -77,60 +114,69 @@ def cell(record: dict) -> str:
     return f"{rate}% ({episodes}, {low}-{high}{erred})"
 
 
+def table_cell(record: dict) -> str:
+    """A cell of the table: 'success / strict 6-DoF success', each as `cell` writes it ('-' for a
+    record without the strict check)."""
+    strict = record.get("strict_successes")
+    if strict is None:
+        return f"{cell(record)} / -"
+    figures = {"episodes": record["episodes"], "successes": strict}
+    figures |= {"ci_low": record["strict_ci_low"], "ci_high": record["strict_ci_high"]}
+    return f"{cell(record)} / {cell(figures)}"
+
+
 def _rank(value: str, known: tuple[str, ...]) -> tuple[int, str]:
     return (known.index(value), "") if value in known else (len(known), value)
 
 
-def _column_order(column: tuple[str, str]) -> tuple:
-    """Sort key of a (task, setting) column: tasks, then settings, in their listed order."""
-    return _rank(column[0], TASKS), _rank(column[1], SETTINGS)
+def _column_order(column: Column) -> tuple:
+    """Sort key of a column: tasks, then settings trained in, then tested in, as listed."""
+    return _rank(column[0], TASKS), _rank(column[2], SETTINGS), _rank(column[1], SETTINGS)
 
 
-def newest_records(records: list[dict]) -> dict[tuple[str, str, str], dict]:
-    """(row, task, setting) -> the newest record of that cell (`row_key` names the row); a cell
-    outranks any test record."""
-    newest: dict[tuple[str, str, str], dict] = {}
+def newest_records(records: list[dict]) -> dict[tuple[str, str, str, str], dict]:
+    """(row, task, setting, trained setting) -> the newest record of that cell (`row_key` names
+    the row, `column_of` the rest); a cell outranks any test record."""
+    newest: dict[tuple[str, str, str, str], dict] = {}
     ranked = sorted(records, key=lambda r: ("protocol" in r, r.get("created", ""), r["path"]))
     for record in ranked:
-        row = row_key(record["method"], record.get("imagery"))
-        newest[(row, record["task"], record["setting"])] = record
+        newest[(row_key(record["method"], record.get("imagery")), *column_of(record))] = record
     return newest
 
 
 def results_table(records: list[dict]) -> tuple[list[str], list[list[str]]]:
-    """(header, rows): the newest record per (row, task, setting) in its cell; below each of our
-    rows the paper's values of that method (empty cells where it has none)."""
+    """(header, rows): the newest record per (row, column) in its cell (`table_cell`); below each
+    of our rows the paper's values of that method (`paper_value`; empty where it has none)."""
     newest = newest_records(records)
-    extra = {(task, setting) for _, task, setting in newest} - set(COLUMNS)
+    extra = {key[1:] for key in newest} - set(COLUMNS)
     columns = list(COLUMNS) + sorted(extra, key=_column_order)
-    found = {row for row, _, _ in newest}
+    found = {key[0] for key in newest}
     methods = list(METHODS) + sorted(found - set(METHODS))
-    header = ["method"] + [column_name(task, setting) for task, setting in columns]
+    header = ["method"] + [column_name(*column) for column in columns]
     rows = []
     for method in methods:
         cells = [
-            cell(newest[(method, task, setting)]) if (method, task, setting) in newest else ""
-            for task, setting in columns
+            table_cell(newest[(method, *column)]) if (method, *column) in newest else ""
+            for column in columns
         ]
         rows.append([METHODS.get(method, method)] + cells)
         if method in PAPER_SUCCESS:
-            paper = PAPER_SUCCESS[method]
-            rows.append(
-                [PAPER_LABELS[method]]
-                + [f"{paper[column]}%" if column in paper else "" for column in columns]
-            )
+            paper = [paper_value(method, column) for column in columns]
+            rows.append([PAPER_LABELS[method]] + ["" if v is None else f"{v}%" for v in paper])
     return header, rows
 
 
 def measured_cells(records: list[dict]) -> int:
-    """How many of the table's rows x paper columns hold a record."""
+    """How many of the table's rows x columns (`COLUMNS`) hold a record."""
     newest = newest_records(records)
     return sum((row, *column) in newest for row in METHODS for column in COLUMNS)
 
 
 def table_plot(records: list[dict]) -> np.ndarray:
-    """The table as grouped bars (one group per paper column, one bar per row) with their 95%
-    intervals, and the paper's values as black diamonds; RGB uint8."""
+    """The table as grouped bars (one group per column of `COLUMNS`, Normal and Challenging of
+    each task side by side; one bar per row) of the success with its 95% interval, and the
+    paper's values (`paper_value`) as black diamonds; RGB uint8. Without records: the paper's
+    values alone."""
     newest = newest_records(records)
     shape = (len(METHODS), len(COLUMNS))
     values, low, high, paper = (np.full(shape, np.nan) for _ in range(4))
@@ -140,8 +186,8 @@ def table_plot(records: list[dict]) -> np.ndarray:
             if record is not None and record["episodes"]:
                 values[i, j] = record["successes"] / record["episodes"]
                 low[i, j], high[i, j] = record["ci_low"], record["ci_high"]
-            if column in PAPER_SUCCESS.get(row, {}):
-                paper[i, j] = PAPER_SUCCESS[row][column] / 100
+            if (value := paper_value(row, column)) is not None:
+                paper[i, j] = value / 100
     return bar_chart(
         [column_name(*column) for column in COLUMNS],
         list(METHODS.values()),
@@ -149,12 +195,14 @@ def table_plot(records: list[dict]) -> np.ndarray:
         low,
         high,
         paper,
-        title=f"Success with 95% Wilson interval, 10 demonstrations ({measured_cells(records)} "
-        f"of {values.size} cells measured)",
-        marker_label="paper (Table 1)",
+        title=f"Success (the anchor's reward) with 95% Wilson interval, 10 demonstrations, "
+        f"trained Normal ({measured_cells(records)} of {values.size} cells measured)",
+        marker_label="paper (Table 1, under its labels)",
+        size=PLOT_SIZE,
     )
 
 
+PLOT_SIZE = (560, 2240)  # (height, width) of table1.png: eight groups of six bars, labels apart
 # run-cell's budget options and the protocol keys they set, in the order a command lists them
 BUDGET_OPTIONS = (
     ("--steps", "steps"),
@@ -171,8 +219,11 @@ def run_cell_command(record: dict) -> str:
     `--config` overlays it was run with."""
     protocol = record["protocol"]
     words = ["nerf-transporter run-cell", f"--task {protocol['task']}"]
-    if protocol["setting"] != "normal":
-        words.append(f"--setting {protocol['setting']}")
+    trained = protocol.get("trained_setting", protocol["setting"])
+    if trained != "normal":
+        words.append(f"--setting {trained}")
+    if protocol["setting"] != trained:
+        words.append(f"--test-setting {protocol['setting']}")
     words.append(f"--method {protocol['method']}")
     if protocol.get("imagery") == "oracle":
         words.append("--imagery oracle")
@@ -197,17 +248,17 @@ def cell_commands(records: list[dict]) -> list[str]:
     ]
 
 
-def validation_curves(records: list[dict]) -> dict[tuple[str, str], list[tuple[str, dict]]]:
-    """(task, setting) -> (row, cell) of the newest cells of that column that hold their
-    validation rounds, in table order."""
-    curves: dict[tuple[str, str], list[tuple[str, dict]]] = {}
+def validation_curves(records: list[dict]) -> dict[Column, list[tuple[str, dict]]]:
+    """column -> (row, cell) of the newest cells of that column that hold their validation
+    rounds, in table order."""
+    curves: dict[Column, list[tuple[str, dict]]] = {}
     for row, record in in_table_order(records):
         if record.get("validation"):
-            curves.setdefault((record["task"], record["setting"]), []).append((row, record))
+            curves.setdefault(column_of(record), []).append((row, record))
     return curves
 
 
-def validation_plot(task: str, setting: str, cells: list[tuple[str, dict]]) -> np.ndarray:
+def validation_plot(column: Column, cells: list[tuple[str, dict]]) -> np.ndarray:
     """Closed-loop validation success against training steps, one line per (row, cell) of a
     column; RGB uint8."""
     episodes = {record.get("protocol", {}).get("validation_episodes") for _, record in cells}
@@ -216,7 +267,7 @@ def validation_plot(task: str, setting: str, cells: list[tuple[str, dict]]) -> n
         [METHODS.get(row, row) for row, _ in cells],
         [[entry["step"] for entry in record["validation"]] for _, record in cells],
         [[entry["success_rate"] for entry in record["validation"]] for _, record in cells],
-        title=f"{column_name(task, setting)}: validation success ({per_round} episodes a round)",
+        title=f"{column_name(*column)}: validation success ({per_round} episodes a round)",
         x_label="training step",
     )
 
@@ -240,9 +291,9 @@ def validation_tables(records: list[dict]) -> str:
     """Markdown, one table per column: each newest cell's validation rounds (successes of the
     round's episodes, by step), its test, the chosen checkpoint's step and where it was fitted."""
     tables = []
-    for (task, setting), cells in validation_curves(records).items():
+    for column, cells in validation_curves(records).items():
         steps = sorted({entry["step"] for _, record in cells for entry in record["validation"]})
-        header = [column_name(task, setting), *(f"step {step}" for step in steps)]
+        header = [column_name(*column), *(f"step {step}" for step in steps)]
         rows = []
         for row, record in cells:
             episodes = record.get("protocol", {}).get("validation_episodes")
@@ -263,7 +314,7 @@ def fit_machines(records: list[dict]) -> list[str]:
     cells: dict[str, dict[str, list[str]]] = {}
     for row, record in in_table_order(records):
         for name in fit_machine_names(record):
-            column = column_name(record["task"], record["setting"])
+            column = column_name(*column_of(record))
             cells.setdefault(name, {}).setdefault(METHODS.get(row, row), []).append(column)
     lines = []
     for name, rows in cells.items():
@@ -284,10 +335,9 @@ def _machine_lines(records: list[dict]) -> list[str]:
 
 def archive_title(archive: Archive) -> str:
     """The heading line of an archived world's table in the report's output."""
-    total = len(METHODS) * len(COLUMNS)
     return (
-        f"Archived world {archive.world} ({archive.folder}: {measured_cells(archive.cells)} of "
-        f"{total} cells, measured in an earlier world, not comparable with this world's)"
+        f"Archived world {archive.world} ({archive.folder}: {len(newest_records(archive.cells))} "
+        "cells, measured in an earlier world, not comparable with this world's)"
     )
 
 
@@ -313,9 +363,14 @@ def readme_block(records: list[dict], archives: Sequence[Archive] = ()) -> str:
         "",
         markdown(header, rows).rstrip("\n"),
         "",
-        'Cells: success (test episodes that ran, 95% Wilson interval); "paper" rows: Table 1 of '
-        "the write-up this project started from (see [Citation](#citation); success %, 10 "
-        "demonstrations, its number of test episodes not stated; `evaluation/paper.py`).",
+        "Columns: each task trained on Normal demonstrations and tested on Normal and on "
+        "Challenging test seeds (the same checkpoint, chosen on Normal validation seeds); a "
+        "column trained and tested Challenging (`--setting challenging`) follows where its cells "
+        "exist. Cells: success (the anchor's reward) / strict success (the 6-DoF check; - where "
+        'the cell lacks it), each rate% (test episodes that ran, 95% Wilson interval). "paper" '
+        "rows: Table 1 of the write-up this project started from (see [Citation](#citation); "
+        "success %, 10 demonstrations, its number of test episodes not stated; "
+        f"`evaluation/paper.py`). {PAPER_NOTE}",
     ]
     lines += _machine_lines(records)
     if count:
@@ -333,7 +388,7 @@ def readme_block(records: list[dict], archives: Sequence[Archive] = ()) -> str:
             "",
             f"#### Archived world `{archive.world}`",
             "",
-            f"{measured_cells(archive.cells)} of {total} cells measured in an earlier world, kept "
+            f"{len(newest_records(archive.cells))} cells measured in an earlier world, kept "
             f"in `results/{ARCHIVE}/world-{archive.world}/`: its seeds built other scenes than "
             "this world's, so these numbers are not comparable with the table above.",
             "",
@@ -441,9 +496,9 @@ def main(argv: list[str] | None = None) -> int:
             return 1
     if args.validation_plots:
         args.validation_plots.mkdir(parents=True, exist_ok=True)
-        for (task, setting), cells in validation_curves(records).items():
-            path = args.validation_plots / f"validation-{column_folder(task, setting)}.png"
-            if not _write_png(path, validation_plot(task, setting, cells)):
+        for column, cells in validation_curves(records).items():
+            path = args.validation_plots / f"validation-{column_folder(*column)}.png"
+            if not _write_png(path, validation_plot(column, cells)):
                 return 1
     table = csv_text if args.csv else markdown
     sys.stdout.write(table(*results_table(records)))

@@ -73,6 +73,7 @@ def results_record(
     *,
     method: torch.nn.Module,
     spec: EvaluationSpec,
+    trained_setting: str,
     split: str,
     checkpoint: str | None,
     global_step: int | None,
@@ -80,14 +81,16 @@ def results_record(
 ) -> dict[str, Any]:
     """The results file's payload: identification, summary figures and every episode's record.
 
-    "imagery" is how the views were built for an imagery method (nerf, oracle), None for the
-    methods that see the RGB-D heightmap or the state.
+    "setting" is the setting the episodes ran in, "trained_setting" the one the policy was trained
+    in (its DataModule's `setting`); "imagery" is how the views were built for an imagery method
+    (nerf, oracle), None for the methods that see the RGB-D heightmap or the state.
     """
     results = sorted(results, key=lambda result: result["seed"])
     return {
         "method": method_name(method),
         "task": spec.task,
         "setting": spec.setting,
+        "trained_setting": trained_setting,
         "split": split,
         "imagery": spec.imagery if getattr(method, "input_kind", None) == "imagery" else None,
         "checkpoint": checkpoint,
@@ -203,6 +206,7 @@ class ClosedLoopTestCallback(Callback):
             results,
             method=pl_module,
             spec=spec,
+            trained_setting=datamodule.setting,
             split="test",
             checkpoint=str(checkpoint) if checkpoint else None,
             global_step=step,
