@@ -212,7 +212,7 @@ def test_the_quickstart_policies_are_shipped():
 def test_a_shipped_policy_loads_weights_only_and_acts(entry):
     path = PRETRAINED_DIR / entry["file"]
     assert sha256(path) == entry["sha256"]
-    assert path.stat().st_size < 5e6
+    assert path.stat().st_size < 8e6  # the table's full-resolution models: 1.9 M float32 weights
     state = torch.load(path, map_location="cpu", weights_only=True)
     assert state["provenance"]["test"]["episodes"] >= 10
     model, datamodule = load_checkpoint(path, torch.device("cpu"))
