@@ -5,7 +5,9 @@ A mira test episode spends most of its time fitting its scene's NeRF. The fit de
 only, not on the policy, so it can run on a free core while the policy still trains, and the
 episodes later only read the cache (`evaluation/cache.py`). The imagery is looked up as the
 episodes of `run-cell` look it up: task, setting, seed and the imagery config of the same resolved
-config (the task's, then any `--config` overlays). Seeds already cached are skipped, so an
+config (the task's, then any `--config` overlays). As in `run-cell`, `--setting` names the setting
+trained in, whose config is resolved, and `--test-setting` the one a test split runs in: the
+Challenging test of a Normal fit is `--test-setting challenging`. Seeds already cached are skipped, so an
 interrupted run resumes; `--reverse` starts at the last seed, so that it meets a test run going
 forward instead of building the same scenes at the same time.
 """
@@ -26,15 +28,20 @@ from nerf_transporter.splits import split_seed
 
 
 def imagery_spec(
-    config: dict[str, Any], split: str, imagery: str | None, cache_dir: str
+    config: dict[str, Any],
+    split: str,
+    imagery: str | None,
+    cache_dir: str,
+    test_setting: str | None = None,
 ) -> EvaluationSpec:
-    """The evaluation spec of `split` for the RavensDataModule that `config` trains on."""
+    """The evaluation spec of `split` for the RavensDataModule that `config` trains on, in
+    `test_setting` (default: the config's) where the split is the test split."""
     data = config.get("data") or {}
     if not str(data.get("class_path", "")).endswith("RavensDataModule"):
         raise CellError(f"the config's data is {data.get('class_path')}, not a RavensDataModule")
     datamodule = RavensDataModule(**data.get("init_args", {}))
     return EvaluationSpec.from_datamodule(
-        datamodule, split=split, imagery=imagery, cache_dir=cache_dir
+        datamodule, split=split, setting=test_setting, imagery=imagery, cache_dir=cache_dir
     )
 
 
@@ -63,7 +70,16 @@ def main(argv: list[str] | None = None) -> int:
         formatter_class=HelpFormatter,
     )
     parser.add_argument("--task", required=True, choices=TASKS)
-    parser.add_argument("--setting", default="normal", choices=("normal", "challenging", "flat"))
+    settings = ("normal", "challenging", "flat")
+    parser.add_argument(
+        "--setting", default="normal", choices=settings, help="the setting trained in"
+    )
+    parser.add_argument(
+        "--test-setting",
+        choices=settings,
+        help="the setting the test split runs in, as run-cell's: e.g. challenging for the "
+        "Challenging test of a Normal fit (default: --setting)",
+    )
     parser.add_argument(
         "--imagery", choices=("nerf", "oracle"), help="default: the config's (nerf)"
     )
@@ -78,10 +94,14 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    if args.split != "test" and args.test_setting not in (None, args.setting):
+        parser.error(
+            f"--test-setting is the test split's; the {args.split} split runs in --setting"
+        )
     try:
         files = config_files(args.configs, args.task, args.setting, None) + args.config
         config = resolve_config(files)
-        spec = imagery_spec(config, args.split, args.imagery, args.cache_dir)
+        spec = imagery_spec(config, args.split, args.imagery, args.cache_dir, args.test_setting)
     except (CellError, FileNotFoundError) as error:
         print(f"nerf-transporter cache-imagery: {error}", file=sys.stderr)
         return 2
