@@ -7,8 +7,8 @@ episodes later only read the cache (`evaluation/cache.py`). The imagery is looke
 episodes of `run-cell` look it up: task, setting, seed and the imagery config of the same resolved
 config (the task's, then any `--config` overlays). As in `run-cell`, `--setting` names the setting
 trained in, whose config is resolved, and `--test-setting` the one a test split runs in: the
-Challenging test of a Normal fit is `--test-setting challenging`. Seeds already cached are skipped, so an
-interrupted run resumes; `--reverse` starts at the last seed, so that it meets a test run going
+Challenging test of a Normal fit is `--test-setting challenging`. Seeds already cached are
+skipped, so an interrupted run resumes; `--reverse` starts at the last seed, so that it meets a test run going
 forward instead of building the same scenes at the same time.
 """
 
@@ -22,7 +22,7 @@ from typing import Any
 from nerf_transporter.cell import CellError, add_config_arguments, config_files, resolve_config
 from nerf_transporter.console import HelpFormatter, progress_bar
 from nerf_transporter.data.datamodule import RavensDataModule
-from nerf_transporter.evaluation.report import TASKS
+from nerf_transporter.evaluation.report import SETTINGS, TASKS
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
 from nerf_transporter.splits import split_seed
 
@@ -70,13 +70,12 @@ def main(argv: list[str] | None = None) -> int:
         formatter_class=HelpFormatter,
     )
     parser.add_argument("--task", required=True, choices=TASKS)
-    settings = ("normal", "challenging", "flat")
     parser.add_argument(
-        "--setting", default="normal", choices=settings, help="the setting trained in"
+        "--setting", default="normal", choices=SETTINGS, help="the setting trained in"
     )
     parser.add_argument(
         "--test-setting",
-        choices=settings,
+        choices=SETTINGS,
         help="the setting the test split runs in, as run-cell's: e.g. challenging for the "
         "Challenging test of a Normal fit (default: --setting)",
     )
