@@ -46,6 +46,7 @@ from nerf_transporter.evaluation.cells import (
 )
 from nerf_transporter.evaluation.paper import PAPER_SUCCESS
 from nerf_transporter.sim.fingerprint import world_fingerprint
+from nerf_transporter.sim.tasks import SETTINGS
 
 # rows of the table, in order: the method's name, or `<method>-oracle` for oracle imagery
 METHODS = {
@@ -60,7 +61,6 @@ PAPER_LABELS = {method: f"paper: {METHODS[method]}" for method in PAPER_SUCCESS}
     "mira": "paper: its method"
 }
 TASKS = ("block-insertion", "place-red-in-green", "hanging-disks", "stacking-kits")
-SETTINGS = ("normal", "challenging", "flat")
 Column = tuple[str, str, str]  # (task, setting tested in, setting trained in)
 # the table's columns, always shown: each task trained Normal, tested Normal and Challenging; other
 # columns (a policy trained in another setting) follow where records exist
