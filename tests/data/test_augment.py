@@ -75,6 +75,20 @@ def _transport_match(pick_image, pick_pixel, place_image, place_pixel, rotation_
     return (moved & target).sum() / max(moved.sum(), target.sum())
 
 
+def _assert_bin_turns_pick_onto_place(
+    pick_image, pick_pixel, place_image, place_pixel, rotation_bin
+) -> None:
+    """The labelled bin overlaps the pick content with the place content well, and about as well
+    as the best of all bins: rasterising an 8-pixel plate (and OpenCV's rounding, which moved
+    between releases) shifts the best by a bin or two, a wrong convention by far more."""
+    matches = [
+        _transport_match(pick_image, pick_pixel, place_image, place_pixel, b)
+        for b in range(g.N_ROTATIONS)
+    ]
+    assert matches[rotation_bin] > 0.5
+    assert matches[rotation_bin] > max(matches) - 0.15
+
+
 def test_rotation_bin_stays_consistent_with_content():
     rng = np.random.default_rng(3)
     for _ in range(10):
@@ -84,11 +98,8 @@ def test_rotation_bin_stays_consistent_with_content():
         view_action = L.to_view_frames({"pick": pick, "place": place}, np.zeros((1, 2)))
         labels = L.labels_from_view_action(view_action, PIXEL)
         pick_image, place_image = _draw(pick), _draw(place)
-        assert (
-            _transport_match(
-                pick_image, labels.pick_pixel, place_image, labels.place_pixel, labels.rotation_bin
-            )
-            > 0.6
+        _assert_bin_turns_pick_onto_place(
+            pick_image, labels.pick_pixel, place_image, labels.place_pixel, labels.rotation_bin
         )
         pixels = [g.world_to_pixel(p[0], PIXEL) for p in (pick, place)]
         transform = A.sample_transform(rng, SHAPE, pixels, margin=6)
@@ -98,15 +109,12 @@ def test_rotation_bin_stays_consistent_with_content():
         assert (
             moved.rotation_bin == labels.rotation_bin
         )  # flat poses: the relative yaw is invariant
-        assert (
-            _transport_match(
-                transform.apply_image(pick_image),
-                moved.pick_pixel,
-                transform.apply_image(place_image),
-                moved.place_pixel,
-                moved.rotation_bin,
-            )
-            > 0.6
+        _assert_bin_turns_pick_onto_place(
+            transform.apply_image(pick_image),
+            moved.pick_pixel,
+            transform.apply_image(place_image),
+            moved.place_pixel,
+            moved.rotation_bin,
         )
 
 
