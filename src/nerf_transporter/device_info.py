@@ -1,10 +1,12 @@
-"""What a benchmark figure was measured on: CPU model, torch threads, torch version, GPU name."""
+"""What a figure was measured on: CPU model, torch threads, GPU name, and the versions that shape it."""
 
 from __future__ import annotations
 
 import platform
+from importlib import metadata
 from pathlib import Path
 
+import cv2
 import torch
 
 
@@ -18,13 +20,27 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+def pybullet_version() -> str | None:
+    """The installed PyBullet's version, or None where it is absent (the GPU machine)."""
+    try:
+        return metadata.version("pybullet")
+    except metadata.PackageNotFoundError:
+        return None
+
+
 def describe_device(device: torch.device | str = "cpu") -> dict:
-    """{"cpu", "threads", "torch", "gpu"}; "gpu" is the CUDA device's name, or None on CPU."""
+    """{"cpu", "threads", "torch", "opencv", "pybullet", "gpu"}; "gpu" is None on CPU.
+
+    OpenCV and PyBullet are recorded because they move figures: OpenCV's warps shape the
+    augmented images, PyBullet is the world.
+    """
     device = torch.device(device)
     return {
         "cpu": cpu_model(),
         "threads": torch.get_num_threads(),
         "torch": torch.__version__,
+        "opencv": cv2.__version__,
+        "pybullet": pybullet_version(),
         "gpu": torch.cuda.get_device_name(device) if device.type == "cuda" else None,
     }
 
