@@ -333,7 +333,11 @@ def export_main(argv: list[str] | None = None) -> int:
         formatter_class=HelpFormatter,
     )
     parser.add_argument("checkpoint", type=Path, help="a checkpoint written by `lightning fit`")
-    parser.add_argument("results", type=Path, help="its results file from `lightning test`")
+    parser.add_argument(
+        "results",
+        type=Path,
+        help="its results file from `lightning test` (for a run-cell fit: <run>/evaluation/<checkpoint>-test-normal.json)",
+    )
     parser.add_argument("--config", required=True, help="the config(s) the run was trained with")
     parser.add_argument("--commit", required=True, help="the git commit the run was trained at")
     parser.add_argument("--out", type=Path, default=PRETRAINED_DIR, help="pretrained folder")
