@@ -196,6 +196,20 @@ def test_two_step_fit_logs_and_checkpoints(name, tmp_path):
         assert "train/loss" in accumulator.Tags()["scalars"]
 
 
+@pytest.mark.parametrize("name", ["transporter_se2", "mira"])
+def test_a_fit_is_a_function_of_its_seed(name, tmp_path):
+    """Two fits of one config on one machine end with equal weights, bit for bit."""
+    config = tiny_config(tmp_path / "tiny.yaml", batch_size=2)
+    model = str(REPO / f"configs/model/{name}.yaml")
+    first, second = (
+        build_cli(["fit", "--config", str(config), "--config", model]).model.state_dict()
+        for _ in range(2)
+    )
+    assert first.keys() == second.keys()
+    for key in first:
+        torch.testing.assert_close(first[key], second[key], rtol=0, atol=0, msg=key)
+
+
 def test_ddp_two_cpu_processes(tmp_path):
     """Lightning's own DDP on two CPU processes (~15 s: two interpreters start)."""
     config = tiny_config(tmp_path / "tiny.yaml", batch_size=1)

@@ -29,14 +29,17 @@ def pybullet_version() -> str | None:
 
 
 def describe_device(device: torch.device | str = "cpu") -> dict:
-    """{"cpu", "threads", "torch", "opencv", "pybullet", "gpu"}; "gpu" is None on CPU.
+    """{"cpu", "cpu_capability", "threads", "torch", "opencv", "pybullet", "gpu"}; "gpu" is None
+    on CPU.
 
     OpenCV and PyBullet are recorded because they move figures: OpenCV's warps shape the
-    augmented images, PyBullet is the world.
+    augmented images, PyBullet is the world. "cpu_capability" is the instruction set torch's CPU
+    kernels run with (AVX2, AVX512, ...): a fit is bit-for-bit repeatable only on the same one.
     """
     device = torch.device(device)
     return {
         "cpu": cpu_model(),
+        "cpu_capability": torch.backends.cpu.get_cpu_capability(),
         "threads": torch.get_num_threads(),
         "torch": torch.__version__,
         "opencv": cv2.__version__,
