@@ -219,6 +219,10 @@ def test_cells_of_a_results_folder_fill_their_rows_the_plot_and_the_readme(tmp_p
         f"{README_END}\n\nthe rest\n"
     )
     assert "old text" not in text and "2 of 48 cells measured" in text
+    assert (
+        "Beyond the 8 columns: place-red-in-green Challenging (trained Challenging), 1 of 6 cells."
+        in text
+    )
     assert "| mira, oracle imagery | 90% (100, 83-94) / - |" in text
     assert "![results table as bars](results/table1.png)" in text
     assert (

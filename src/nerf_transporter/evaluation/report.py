@@ -172,6 +172,17 @@ def measured_cells(records: list[dict]) -> int:
     return sum((row, *column) in newest for row in METHODS for column in COLUMNS)
 
 
+def extra_column_counts(records: list[dict]) -> dict[Column, int]:
+    """Columns beyond `COLUMNS` (a policy trained in another setting, e.g. the optional ninth
+    column) -> how many of the table's rows hold a record there, in the table's column order."""
+    newest = newest_records(records)
+    counts: dict[Column, int] = {}
+    for row, *column in newest:
+        if tuple(column) not in COLUMNS and row in METHODS:
+            counts[tuple(column)] = counts.get(tuple(column), 0) + 1
+    return dict(sorted(counts.items(), key=lambda item: _column_order(item[0])))
+
+
 def table_plot(records: list[dict]) -> np.ndarray:
     """The table as grouped bars (one group per column of `COLUMNS`, Normal and Challenging of
     each task side by side; one bar per row) of the success with its 95% interval, and the
@@ -351,7 +362,12 @@ def readme_block(records: list[dict], archives: Sequence[Archive] = ()) -> str:
     header, rows = results_table(records)
     lines = [
         f"Full protocol (`nerf-transporter run-cell`, see below): {count} of {total} cells measured "
-        f"in `results/`, in {world}.",
+        f"in `results/`, in {world}."
+        + "".join(
+            f" Beyond the {len(COLUMNS)} columns: {column_name(*column)}, {cells} of "
+            f"{len(METHODS)} cells."
+            for column, cells in extra_column_counts(records).items()
+        ),
     ]
     if count == 0:
         lines[0] = (
