@@ -28,6 +28,7 @@ import argparse
 import csv
 import io
 import sys
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -175,11 +176,11 @@ def measured_cells(records: list[dict]) -> int:
 def extra_column_counts(records: list[dict]) -> dict[Column, int]:
     """Columns beyond `COLUMNS` (a policy trained in another setting, e.g. the optional ninth
     column) -> how many of the table's rows hold a record there, in the table's column order."""
-    newest = newest_records(records)
-    counts: dict[Column, int] = {}
-    for row, *column in newest:
-        if tuple(column) not in COLUMNS and row in METHODS:
-            counts[tuple(column)] = counts.get(tuple(column), 0) + 1
+    counts = Counter(
+        (task, setting, trained)
+        for row, task, setting, trained in newest_records(records)
+        if row in METHODS and (task, setting, trained) not in COLUMNS
+    )
     return dict(sorted(counts.items(), key=lambda item: _column_order(item[0])))
 
 
