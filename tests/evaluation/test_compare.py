@@ -1,17 +1,18 @@
-"""`nerf-transporter compare-cells`: cells of one column paired on their common test seeds."""
+"""`nerf-transporter compare-cells`: cells tested alike, paired on their common test seeds."""
 
 import json
 
 import pytest
 
+from nerf_transporter.evaluation.cells import cross_protocol, protocol_id
 from nerf_transporter.evaluation.compare import main
 from nerf_transporter.evaluation.metrics import summarize
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
 
-def write_cell(folder, name, outcomes, task="block-insertion", machine="AMD EPYC", world=None):
+def write_cell(folder, name, outcomes, task="block-insertion", world=None, setting="normal"):
     """A cell file as run-cell writes it, with these test outcomes (seed -> success or None for
-    an erred episode), measured in `world` (default: this checkout's)."""
+    an erred episode), tested in `setting` and measured in `world` (default: this checkout's)."""
     results = [
         {
             "seed": seed,
@@ -21,21 +22,37 @@ def write_cell(folder, name, outcomes, task="block-insertion", machine="AMD EPYC
         }
         for seed, won in outcomes.items()
     ]
+    protocol = {"task": task, "setting": setting, "method": "mira", "imagery": "nerf"}
     record = summarize(results) | {
-        "protocol": {"task": task, "setting": "normal", "method": "mira", "imagery": "nerf"},
+        "protocol": protocol,
         "world": world or world_fingerprint(),
         "task": task,
-        "setting": "normal",
+        "setting": setting,
         "method": "mira",
         "imagery": "nerf",
         "errors": sum(1 for r in results if r["error"]),
-        "checkpoint": {"step": 2000},
-        "machine": {"fit": [{"cpu": machine, "gpu": None}]},
+        "checkpoint": {"step": 2000, "path": "run/checkpoints/step002000.ckpt"},
+        "machine": {"fit": [{"cpu": "AMD EPYC", "gpu": None}]},
         "episode_results": results,
     }
     path = folder / f"{name}.json"
     path.write_text(json.dumps(record))
     return path
+
+
+def write_cross_cell(folder, name, outcomes, setting):
+    """A cell as run-cell writes it for the Normal fit tested in `setting`."""
+    fit = {"task": "block-insertion", "setting": "normal", "method": "mira", "imagery": "nerf"}
+    protocol = cross_protocol(fit, setting)
+    fitted = {
+        "protocol_id": protocol_id(fit),
+        "run_dir": "run",
+        "checkpoint": "run/checkpoints/step002000.ckpt",
+    }
+    return edited(
+        write_cell(folder, name, outcomes, setting=setting),
+        lambda record: record.update(protocol=protocol, fit=fitted),
+    )
 
 
 def test_cells_are_paired_on_common_seeds_without_erred_episodes(tmp_path, capsys):
@@ -45,17 +62,34 @@ def test_cells_are_paired_on_common_seeds_without_erred_episodes(tmp_path, capsy
     )
     assert main([str(first), str(other)]) == 0
     rows = [line.strip("| ").split(" | ") for line in capsys.readouterr().out.splitlines()[2:]]
-    assert rows[0][4:] == ["-"] * 6
+    assert rows[0][5:] == ["-"] * 6
     # common seeds without errors: 1, 3, 5, 7 -> both 1, first only 2, other only 0, neither 1
-    assert rows[1][4:9] == ["4", "1", "2", "0", "1"]
-    assert float(rows[1][9]) == pytest.approx(0.5)
+    assert rows[1][5:10] == ["4", "1", "2", "0", "1"]
+    assert float(rows[1][10]) == pytest.approx(0.5)
 
 
-def test_cells_of_different_columns_are_refused(tmp_path, capsys):
+def test_cells_trained_in_two_settings_are_paired_on_the_seeds_they_were_tested_on(
+    tmp_path, capsys
+):
+    """The Normal fit tested on Challenging, and a fit trained on Challenging, on one seed set."""
+    normal = write_cross_cell(tmp_path, "normal", {1: True, 3: False, 5: False}, "challenging")
+    outcomes = {1: True, 3: True, 5: True}
+    challenging = write_cell(tmp_path, "challenging", outcomes, setting="challenging")
+    assert main([str(normal), str(challenging)]) == 0
+    rows = [line.strip("| ").split(" | ") for line in capsys.readouterr().out.splitlines()[2:]]
+    assert [row[1] for row in rows] == ["Normal", "Challenging"]
+    assert rows[1][5:10] == ["3", "1", "0", "2", "0"]
+    normal_tested_normal = write_cell(tmp_path, "normal-normal", outcomes)
+    assert main([str(normal_tested_normal), str(challenging)]) == 2
+    err = capsys.readouterr().err
+    assert "different tasks or settings (block-insertion, block-insertion Challenging)" in err
+
+
+def test_cells_tested_on_different_tasks_are_refused(tmp_path, capsys):
     first = write_cell(tmp_path, "first", {1: True})
     other = write_cell(tmp_path, "other", {1: True}, task="hanging-disks")
     assert main([str(first), str(other)]) == 2
-    assert "different columns (block-insertion, hanging-disks)" in capsys.readouterr().err
+    assert "different tasks or settings (block-insertion, hanging-disks)" in capsys.readouterr().err
     assert main([str(first)]) == 2
     assert "two or more cell files" in capsys.readouterr().err
     validation = tmp_path / "validation.json"
@@ -77,7 +111,8 @@ def test_a_test_record_of_evaluate_checkpoints_is_compared_with_a_cell(tmp_path,
     tested.write_text(json.dumps(record))
     assert main([str(cell), str(tested)]) == 0
     rows = [line.strip("| ").split(" | ") for line in capsys.readouterr().out.splitlines()[2:]]
-    assert rows[1][2:9] == ["4000", "not recorded", "2", "1", "0", "1", "0"]
+    assert rows[1][1] == "Normal"
+    assert rows[1][3:10] == ["4000", "not recorded", "2", "1", "0", "1", "0"]
 
 
 def test_cells_of_two_worlds_are_refused_and_one_archived_world_is_compared(tmp_path, capsys):

@@ -1,5 +1,6 @@
-"""`nerf-transporter compare-cells FIRST OTHER [...]`: cells of one column on their common test
-seeds, e.g. one method under two budgets, or fitted on two machines. Besides run-cell's cells it
+"""`nerf-transporter compare-cells FIRST OTHER [...]`: cells tested on one task and setting, paired
+on their common test seeds, e.g. one method under two budgets, fitted on two machines, or trained
+in two settings (a Challenging-trained cell against the Normal fit's Challenging test). Besides run-cell's cells it
 reads the test records `nerf-transporter evaluate-checkpoints --split test` writes into a run's
 `evaluation/` (e.g. a checkpoint tested on more seeds than its cell). Each file is checked as
 `evaluation/cells.py` checks cells, and all must come from one world: this checkout's, or one
@@ -17,18 +18,17 @@ import sys
 from pathlib import Path
 
 from nerf_transporter.console import HelpFormatter
-from nerf_transporter.evaluation.cells import CellFileError, load_record
+from nerf_transporter.evaluation.cells import CellFileError, load_record, trained_setting
 from nerf_transporter.evaluation.metrics import paired_comparison
 from nerf_transporter.evaluation.report import (
     cell,
     column_name,
-    column_of,
     fit_machine_names,
     markdown,
     seed_outcomes,
 )
 
-HEADER = ["cell", "test", "checkpoint step", "fitted on", "seeds", "both", "first only"]
+HEADER = ["cell", "trained", "test", "checkpoint step", "fitted on", "seeds", "both", "first only"]
 HEADER += ["this only", "neither", "p"]
 
 
@@ -47,10 +47,13 @@ def load_tested(paths: list[Path]) -> list[dict]:
 
 def comparison_table(cells: list[dict]) -> tuple[list[str], list[list[str]]]:
     """The first cell, then each other one against it on their common test seeds."""
-    tasks = {column_of(record) for record in cells}
-    if len(tasks) > 1:
-        columns = ", ".join(sorted(column_name(*task) for task in tasks))
-        raise ValueError(f"the cells belong to different columns ({columns}): compare one column")
+    tested = {(record["task"], record["setting"]) for record in cells}
+    if len(tested) > 1:
+        names = ", ".join(sorted(column_name(*pair) for pair in tested))
+        raise ValueError(
+            f"the cells were tested on different tasks or settings ({names}): compare cells "
+            "tested alike"
+        )
     first = seed_outcomes(cells[0])
     rows = []
     for index, record in enumerate(cells):
@@ -58,6 +61,7 @@ def comparison_table(cells: list[dict]) -> tuple[list[str], list[list[str]]]:
         step = checkpoint["step"] if isinstance(checkpoint, dict) else record.get("global_step")
         described = [
             record["path"],
+            trained_setting(record).capitalize(),
             cell(record),
             "-" if step is None else str(step),
             ", ".join(fit_machine_names(record)),
@@ -74,8 +78,9 @@ def comparison_table(cells: list[dict]) -> tuple[list[str], list[list[str]]]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="nerf-transporter compare-cells",
-        description="Cells of one column on their common test seeds: how many seeds both, only "
-        "the first, only the other and neither succeeded on, and the exact McNemar p-value.",
+        description="Cells tested on one task and setting (trained in either), paired on their "
+        "common test seeds: how many seeds both, only the first, only the other and neither "
+        "succeeded on, and the exact McNemar p-value.",
         formatter_class=HelpFormatter,
     )
     parser.add_argument(
