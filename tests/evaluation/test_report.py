@@ -258,6 +258,13 @@ def test_an_empty_results_folder_gives_the_paper_rows_and_says_what_to_run(tmp_p
     assert "| mira (ours) |  |  |  |  |  |  |  |  |\n" in captured.out
     text = readme.read_text()
     assert "no cell has been measured yet" in text and "table1.png" not in text
+    write_cell(tmp_path, "form2fit", "place-red-in-green", "challenging", 13, 100)
+    assert report_main([str(tmp_path), "--readme", str(readme)]) == 0
+    text = readme.read_text()
+    assert "no cell has been measured yet" in text and (
+        "Beyond the 8 columns: place-red-in-green Challenging (trained Challenging), 1 of 6 cells."
+        in text
+    )
 
 
 def test_report_names_a_readme_without_markers_and_a_missing_folder(tmp_path, capsys):

@@ -361,21 +361,18 @@ def readme_block(records: list[dict], archives: Sequence[Archive] = ()) -> str:
     fingerprint = world_fingerprint()
     world = f"this checkout's world `{fingerprint}` (its fingerprint, `sim/fingerprint.py`)"
     header, rows = results_table(records)
-    lines = [
-        f"Full protocol (`nerf-transporter run-cell`, see below): {count} of {total} cells measured "
-        f"in `results/`, in {world}."
-        + "".join(
-            f" Beyond the {len(COLUMNS)} columns: {column_name(*column)}, {cells} of "
-            f"{len(METHODS)} cells."
-            for column, cells in extra_column_counts(records).items()
-        ),
-    ]
-    if count == 0:
-        lines[0] = (
-            f"Full protocol (`nerf-transporter run-cell`, see below): no cell has been measured "
-            f"yet in {world}: `results/` holds none of the {total}, the table shows the paper's "
-            "values only."
-        )
+    beyond = "".join(
+        f" Beyond the {len(COLUMNS)} columns: {column_name(*column)}, {cells} of "
+        f"{len(METHODS)} cells."
+        for column, cells in extra_column_counts(records).items()
+    )
+    measured = (
+        f"{count} of {total} cells measured in `results/`, in {world}."
+        if count
+        else f"no cell has been measured yet in {world}: `results/` holds none of the {total}, "
+        "the table shows the paper's values only."
+    )
+    lines = [f"Full protocol (`nerf-transporter run-cell`, see below): {measured}{beyond}"]
     lines += [
         "",
         markdown(header, rows).rstrip("\n"),
