@@ -55,7 +55,7 @@ TOOLS: dict[str, tuple[str, str]] = {
     ),
     "compare-cells": (
         "nerf_transporter.evaluation.compare:main",
-        "cells tested alike, trained in either setting, on their common test seeds (exact McNemar p)",
+        "cells tested alike (trained in either setting), paired on common seeds: McNemar p",
     ),
     "evaluate-checkpoints": (
         "nerf_transporter.evaluation.checkpoints:main",

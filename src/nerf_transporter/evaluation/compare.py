@@ -1,10 +1,10 @@
 """`nerf-transporter compare-cells FIRST OTHER [...]`: cells tested on one task and setting, paired
 on their common test seeds, e.g. one method under two budgets, fitted on two machines, or trained
-in two settings (a Challenging-trained cell against the Normal fit's Challenging test). Besides run-cell's cells it
-reads the test records `nerf-transporter evaluate-checkpoints --split test` writes into a run's
-`evaluation/` (e.g. a checkpoint tested on more seeds than its cell). Each file is checked as
-`evaluation/cells.py` checks cells, and all must come from one world: this checkout's, or one
-archived world's (`results/archive/world-<fingerprint>/`).
+in two settings (a Challenging-trained cell against the Normal fit's Challenging test). Besides
+run-cell's cells it reads the test records `nerf-transporter evaluate-checkpoints --split test`
+writes into a run's `evaluation/` (e.g. a checkpoint tested on more seeds than its cell). Each
+file is checked as `evaluation/cells.py` checks cells, and all must come from one world: this
+checkout's, or one archived world's (`results/archive/world-<fingerprint>/`).
 
 Two rates of 100 episodes each differ by chance by up to ~13 points; on the same seeds only the
 seeds one cell succeeded on and the other failed decide between them (exact McNemar test,
