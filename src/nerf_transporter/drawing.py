@@ -164,7 +164,8 @@ def bar_chart(
 
     `values`, `low`, `high` and `markers` are [len(series), len(groups)]: bar heights, the ends of
     each bar's whisker, and a black diamond per bar slot (e.g. a reference value); NaN leaves a
-    bar (its slot shows "-") or a marker out. Series are told apart by colour, named in a legend.
+    bar (its slot shows "-") or a marker out. Series are told apart by colour, named in a legend;
+    a group's name may hold one line break.
     """
     values, low, high, markers = (
         np.asarray(a, dtype=np.float64) for a in (values, low, high, markers)
@@ -182,7 +183,9 @@ def bar_chart(
     bar_width = group_width * 0.8 / len(series)
     for g, group in enumerate(groups):
         start = left + g * group_width + 0.1 * group_width
-        _centred_text(image, group, int(left + (g + 0.5) * group_width), bottom + 22, scale)
+        for line, text in enumerate(group.split("\n")):
+            centre_x = int(left + (g + 0.5) * group_width)
+            _centred_text(image, text, centre_x, bottom + 22 + 16 * line, scale)
         for s in range(len(series)):
             x0, x1 = int(start + s * bar_width + 1), int(start + (s + 1) * bar_width - 1)
             centre = (x0 + x1) // 2

@@ -241,11 +241,18 @@ def test_cells_of_a_results_folder_fill_their_rows_the_plot_and_the_readme(tmp_p
     ) in text
     image = cv2.cvtColor(cv2.imread(str(plot)), cv2.COLOR_BGR2RGB)
     empty = table_plot([])
-    assert image.shape == empty.shape
+    # the ninth column holds a record, so the plot draws it as a ninth group beside the eight
+    group = (empty.shape[1] - 80) // 8
+    assert image.shape == (empty.shape[0], empty.shape[1] + group, 3)
     # mira's colour (its legend square) fills a bar below the legend, where nothing measured has none
     mira = empty[51, 67]
     assert (image[70:] == mira).all(axis=2).sum() > 1000
     assert (empty[70:] == mira).all(axis=2).sum() == 0
+    # the ninth group's one bar is Form2Fit's: the fifth colour of the legend's squares
+    legend = [tuple(c) for c in image[51] if int(c.max()) - int(c.min()) > 40]
+    ninth = image[70:, 60 + 8 * group :]
+    filled = [(ninth == colour).all(axis=2).sum() for colour in dict.fromkeys(legend)]
+    assert filled[4] > 1000 and sum(filled) == filled[4]
 
 
 def test_an_empty_results_folder_gives_the_paper_rows_and_says_what_to_run(tmp_path, capsys):

@@ -186,35 +186,40 @@ def extra_column_counts(records: list[dict]) -> dict[Column, int]:
 
 def table_plot(records: list[dict]) -> np.ndarray:
     """The table as grouped bars (one group per column of `COLUMNS`, Normal and Challenging of
-    each task side by side; one bar per row) of the success with its 95% interval, and the
-    paper's values (`paper_value`) as black diamonds; RGB uint8. Without records: the paper's
+    each task side by side, then each column beyond them that holds a record, as
+    `extra_column_counts` orders them; one bar per row) of the success with its 95% interval, and
+    the paper's values (`paper_value`) as black diamonds; RGB uint8. Without records: the paper's
     values alone."""
     newest = newest_records(records)
-    shape = (len(METHODS), len(COLUMNS))
+    columns = list(COLUMNS) + list(extra_column_counts(records))
+    shape = (len(METHODS), len(columns))
     values, low, high, paper = (np.full(shape, np.nan) for _ in range(4))
     for i, row in enumerate(METHODS):
-        for j, column in enumerate(COLUMNS):
+        for j, column in enumerate(columns):
             record = newest.get((row, *column))
             if record is not None and record["episodes"]:
                 values[i, j] = record["successes"] / record["episodes"]
                 low[i, j], high[i, j] = record["ci_low"], record["ci_high"]
             if (value := paper_value(row, column)) is not None:
                 paper[i, j] = value / 100
+    table_cells = len(METHODS) * len(COLUMNS)
     return bar_chart(
-        [column_name(*column) for column in COLUMNS],
+        [column_name(*column).replace(" (", "\n(") for column in columns],
         list(METHODS.values()),
         values,
         low,
         high,
         paper,
         title=f"Success (the anchor's reward) with 95% Wilson interval, 10 demonstrations, "
-        f"trained Normal ({measured_cells(records)} of {values.size} cells measured)",
+        f"trained Normal unless labelled ({measured_cells(records)} of {table_cells} cells of "
+        "the eight columns measured)",
         marker_label="paper (Table 1, under its labels)",
-        size=PLOT_SIZE,
+        size=(PLOT_HEIGHT, PLOT_MARGIN + PLOT_GROUP_WIDTH * len(columns)),
     )
 
 
-PLOT_SIZE = (560, 2240)  # (height, width) of table1.png: eight groups of six bars, labels apart
+# table1.png: its height, and its width as margins plus one group of six bars a column, labels apart
+PLOT_HEIGHT, PLOT_MARGIN, PLOT_GROUP_WIDTH = 560, 80, 270
 # run-cell's budget options and the protocol keys they set, in the order a command lists them
 BUDGET_OPTIONS = (
     ("--steps", "steps"),
