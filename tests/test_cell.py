@@ -218,6 +218,23 @@ def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol
     assert json.loads(cell.read_text())["created"] != created
 
 
+def test_an_interrupted_force_resumes_its_own_fit_and_a_finished_one_fits_afresh(fakes):
+    run()
+    runs = next(Path("logs/cells/block-insertion/mira-oracle").iterdir())
+    cell = Path("results/block-insertion/mira-oracle.json")
+    fakes.interrupt_at = 4
+    with pytest.raises(KeyboardInterrupt):
+        run(force=True)
+    assert json.loads(cell.read_text())["run_dir"].endswith("version_0")  # the old cell stays
+    fakes.interrupt_at = None
+    _, record = run(force=True)  # resumes the forced fit, not the old one nor a fresh one
+    assert fakes.calls[-1] == str(runs / "version_1" / "checkpoints" / "step000004.ckpt")
+    assert record["run_dir"].endswith("version_1")
+    _, record = run(force=True)  # its cell landed: the next --force fits afresh
+    assert fakes.calls[-1] is None and record["run_dir"].endswith("version_2")
+    assert sorted(p.name for p in runs.glob("version_*")) == [f"version_{i}" for i in range(3)]
+
+
 def test_a_fit_without_pybullet_is_validated_where_the_cell_is_tested(fakes, monkeypatch):
     run_dir, record = run(fit_only=True)
     assert record is None and run_dir.name == "version_0" and len(fakes.calls) == 1

@@ -26,8 +26,9 @@ episodes, and the model's architecture (its other arguments, e.g. width and crop
 folder `<logs>/<task>[-<setting>]/<row>/<protocol id>/version_N`, so a rerun resumes the latest run
 from its checkpoint of the highest step (wherever the folder was moved), never trains a finished
 fit again, and skips a cell whose JSON holds the same protocol (read by `evaluation/cells.py`: a
-cell of another world is an error); `--force` measures it again from a fresh fit. One command at a
-time fits and validates a protocol, and one at a time tests it in a setting: each holds a lock in
+cell of another world is an error); `--force` measures it again from a fresh fit, in a run folder
+of its own that `--force` resumes until the cell is written from it (so an interrupted `--force`
+continues where it stopped, in a later session too). One command at a time fits and validates a protocol, and one at a time tests it in a setting: each holds a lock in
 the protocol's folder, and a second one exits naming the first (so a fit's two tests may run side
 by side once it is validated). Before anything runs, the folders it will write (fit runs,
 results, the imagery cache) are checked writable. A test with erred episodes writes no cell (its
@@ -98,6 +99,7 @@ CALLBACK = "SuccessRateCallback"
 CHECKPOINT = "ModelCheckpoint"
 MONITOR = "eval/success_rate"
 SEGMENTS = "fit-segments.json"  # in a run folder: one entry per fit started there
+FORCED = "forced-fit"  # in a run folder claimed by --force: resumed by --force until its cell lands
 LOCK = ".run-cell.lock"  # in a protocol's folder: held by the one run-cell fitting or validating
 TEST_LOCK = ".run-cell-test-{setting}.lock"  # there: held by the one run-cell testing in a setting
 LOGGER = "lightning.pytorch.loggers.TensorBoardLogger"
@@ -372,17 +374,34 @@ def finished_test(
     return None
 
 
-def fit_run(runs: Path, force: bool) -> tuple[Path, Path | None]:
+def _names_run(cell: Path, run_dir: Path) -> bool:
+    """Whether the cell file `cell` was measured in `run_dir` (its recorded run folder ends in
+    the same protocol folder and version, wherever the logs were moved)."""
+    try:
+        recorded = Path(json.loads(cell.read_text())["run_dir"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    return recorded.parts[-2:] == run_dir.parts[-2:]
+
+
+def fit_run(runs: Path, force: bool, cell: Path) -> tuple[Path, Path | None]:
     """(run folder, checkpoint to resume from or None): the latest run under `runs` with a
-    readable checkpoint and its checkpoint of the highest step (`latest_checkpoint`), unless
-    `force` or there is none, then a newly claimed `version_N`."""
-    if not force:
-        try:
-            checkpoint = latest_checkpoint(runs)
-            return checkpoint.parent.parent, checkpoint
-        except NoRunToResumeError:
-            pass
-    return runs / f"version_{claim_version(runs)}", None
+    readable checkpoint and its checkpoint of the highest step (`latest_checkpoint`); with `force`
+    only where that run was itself claimed by `force` (marked `FORCED`) and `cell` was not yet
+    measured in it (an interrupted `--force` resumes). Otherwise, or where there is none, a newly
+    claimed `version_N`, marked where `force` claimed it."""
+    try:
+        checkpoint = latest_checkpoint(runs)
+    except NoRunToResumeError:
+        checkpoint = None
+    if checkpoint is not None:
+        run_dir = checkpoint.parent.parent
+        if not force or ((run_dir / FORCED).exists() and not _names_run(cell, run_dir)):
+            return run_dir, checkpoint
+    run_dir = runs / f"version_{claim_version(runs)}"
+    if force:
+        (run_dir / FORCED).write_text(f"claimed by run-cell --force to measure {cell} again\n")
+    return run_dir, None
 
 
 def git_state() -> dict[str, Any]:
@@ -557,7 +576,7 @@ def run_cell(
         if not force and measured(path, protocol, input_kind):
             return path, None  # measured meanwhile by the command that held the lock
         # a cross-setting cell never fits afresh: its fit is the training setting's cell's
-        run_dir, resume = fit_run(runs, force and not cross)
+        run_dir, resume = fit_run(runs, force and not cross, path)
         if resume is None or checkpoint_step(resume) < fit_protocol["steps"]:
             with removed_if_unused([run_dir] if resume is None else []):
                 fit(without_closed_loop(config) if fit_only else config, run_dir, resume, device)
@@ -734,7 +753,12 @@ def main(argv: list[str] | None = None) -> int:
     add_config_arguments(parser, "the task's and the method's")
     parser.add_argument("--results", type=Path, default=Path("results"), help="cell folder")
     parser.add_argument("--logs", type=Path, default=Path("logs/cells"), help="fit runs folder")
-    parser.add_argument("--force", action="store_true", help="measure again from a fresh fit")
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="measure again from a fresh fit (one interrupted before its cell was written is "
+        "resumed by --force again)",
+    )
     parser.add_argument(
         "--eval-workers",
         type=int,
