@@ -2,7 +2,14 @@
 
 import numpy as np
 
-from nerf_transporter.drawing import captioned, draw_marker, heatmap_picture, wrap_text
+from nerf_transporter.drawing import (
+    bar_chart,
+    captioned,
+    draw_marker,
+    heatmap_picture,
+    line_chart,
+    wrap_text,
+)
 
 
 def test_heatmap_picture_rings_the_label_and_ends_in_a_colour_bar():
@@ -29,3 +36,27 @@ def test_markers_and_captions():
     assert wrap_text("one two three four five six", 40, 0.35)[0] != "one two three four five six"
     tall = captioned(image, ["seed 3", "the object did not end at the target pose"])
     assert tall.shape[0] > 50 and (tall[-50:] == image).all()
+
+
+def _header_ink_columns(image: np.ndarray) -> np.ndarray:
+    """Columns of the title and legend band (above the plot area) that hold any non-white pixel."""
+    return np.flatnonzero((image[:64] < 250).any(axis=(0, 2)))
+
+
+def test_charts_widen_to_hold_a_long_title_and_legend():
+    names = [f"a method with a long name {i}" for i in range(6)]
+    title = "a column with a long name: validation success (20 episodes a round) " * 2
+    lines = line_chart(names, [[500, 1000]] * 6, [[0.1, 0.2]] * 6, title=title)
+    assert lines.shape[0] == 480 and lines.shape[1] > 800
+    assert _header_ink_columns(lines).max() < lines.shape[1] - 5  # nothing cut at the right edge
+    bars = bar_chart(
+        ["one", "two"],
+        names,
+        *(np.full((6, 2), 0.5) for _ in range(4)),
+        title=title,
+        marker_label="paper (Table 1, under its labels)",
+    )
+    assert bars.shape[1] > 1280
+    assert _header_ink_columns(bars).max() < bars.shape[1] - 5
+    short = line_chart(["one"], [[1, 2]], [[0.0, 1.0]], title="short")
+    assert short.shape[:2] == (480, 800)  # a header that fits keeps the size asked for

@@ -15,6 +15,7 @@ MARKER: Colour = (255, 255, 255)  # labels and actions: white with a black outli
 CAPTION_BACKGROUND: Colour = (30, 30, 30)
 CAPTION_TEXT: Colour = (235, 235, 235)
 FONT = cv2.FONT_HERSHEY_SIMPLEX
+TITLE_SCALE = 0.6  # a chart's title; its legend and labels are smaller
 
 
 def _colormap(values: np.ndarray) -> np.ndarray:
@@ -133,18 +134,36 @@ def _series_colours(count: int) -> list[Colour]:
     ]
 
 
+def _legend_entry_width(name: str, scale: float) -> int:
+    """Pixels one legend entry takes: swatch, its name and the gap before the next."""
+    return 20 + cv2.getTextSize(name, FONT, scale, 1)[0][0] + 24
+
+
+def _header_width(left: int, title: str, entries: Sequence[str], scale: float) -> int:
+    """The x up to which `_title_and_legend` draws a title and a legend of `entries`."""
+    title_end = left + cv2.getTextSize(title, FONT, TITLE_SCALE, 1)[0][0] if title else left
+    legend_end = left + sum(_legend_entry_width(name, scale) for name in entries)
+    return max(title_end, legend_end)
+
+
+def _canvas(size: tuple[int, int], header: int) -> np.ndarray:
+    """A white RGB canvas of `size`, widened where the header (title and legend) needs it."""
+    height, width = size
+    return np.full((height, max(width, header + 10), 3), 255, dtype=np.uint8)
+
+
 def _title_and_legend(
     image: np.ndarray, left: int, title: str, series: Sequence[str], scale: float
 ) -> int:
     """The title and one colour swatch per series along the top, in place; returns the x after the
     legend."""
     if title:
-        cv2.putText(image, title, (left, 24), FONT, 0.6, (20, 20, 20), 1, cv2.LINE_AA)
+        cv2.putText(image, title, (left, 24), FONT, TITLE_SCALE, (20, 20, 20), 1, cv2.LINE_AA)
     x = left
     for colour, name in zip(_series_colours(len(series)), series, strict=True):
         cv2.rectangle(image, (x, 44), (x + 14, 58), colour, cv2.FILLED)
         cv2.putText(image, name, (x + 20, 56), FONT, scale, INK, 1, cv2.LINE_AA)
-        x += 20 + cv2.getTextSize(name, FONT, scale, 1)[0][0] + 24
+        x += _legend_entry_width(name, scale)
     return x
 
 
@@ -165,7 +184,8 @@ def bar_chart(
     `values`, `low`, `high` and `markers` are [len(series), len(groups)]: bar heights, the ends of
     each bar's whisker, and a black diamond per bar slot (e.g. a reference value); NaN leaves a
     bar (its slot shows "-") or a marker out. Series are told apart by colour, named in a legend;
-    a group's name may hold one line break.
+    a group's name may hold one line break. The canvas is `size`, widened where the title or the
+    legend would not fit it.
     """
     values, low, high, markers = (
         np.asarray(a, dtype=np.float64) for a in (values, low, high, markers)
@@ -173,10 +193,11 @@ def bar_chart(
     shape = (len(series), len(groups))
     if any(array.shape != shape for array in (values, low, high, markers)):
         raise ValueError(f"values, low, high and markers must all be [series, groups] = {shape}")
-    height, width = size
-    image = np.full((height, width, 3), 255, dtype=np.uint8)
-    left, right, top, bottom = 60, width - 20, 80, height - 50
-    scale = 0.45
+    left, scale = 60, 0.45
+    legend = [*series, marker_label] if marker_label else list(series)
+    image = _canvas(size, _header_width(left, title, legend, scale))
+    height, width = image.shape[:2]
+    right, top, bottom = width - 20, 80, height - 50
     y_of = _fraction_axis(image, (left, right, top, bottom), scale)
     colours = _series_colours(len(series))
     group_width = (right - left) / len(groups)
@@ -218,16 +239,17 @@ def line_chart(
     size: tuple[int, int] = (480, 800),
 ) -> np.ndarray:
     """One polyline with dots per series of fractions in [0, 1] against x (RGB uint8 [H, W, 3]);
-    the x axis runs from 0 to the largest x, series are told apart by colour, named in a legend."""
+    the x axis runs from 0 to the largest x, series are told apart by colour, named in a legend;
+    the canvas is `size`, widened where the title or the legend would not fit it."""
     if not (len(series) == len(x_values) == len(fractions)):
         raise ValueError("series, x_values and fractions must have one entry per series")
     if any(len(xs) != len(ys) for xs, ys in zip(x_values, fractions, strict=True)):
         raise ValueError("each series needs as many x values as fractions")
     x_max = max((max(xs) for xs in x_values if len(xs)), default=0) or 1
-    height, width = size
-    image = np.full((height, width, 3), 255, dtype=np.uint8)
-    left, right, top, bottom = 60, width - 30, 80, height - 50
-    scale = 0.45
+    left, scale = 60, 0.45
+    image = _canvas(size, _header_width(left, title, series, scale))
+    height, width = image.shape[:2]
+    right, top, bottom = width - 30, 80, height - 50
     y_of = _fraction_axis(image, (left, right, top, bottom), scale)
 
     def x_of(value: float) -> int:
