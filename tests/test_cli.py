@@ -535,3 +535,13 @@ def test_a_fit_logged_to_a_file_reports_progress_in_lines(tmp_path, capsys):
     assert "\r" not in err
     (last,) = [line for line in err.splitlines() if line.startswith("step 2/2 ")]
     assert "train_loss" in last and last.endswith("steps/s")
+
+
+def test_a_tool_whose_reader_left_stops_quietly(tmp_path):
+    """`nerf-transporter report ... | head` ends without a traceback when head stops reading."""
+    command = [sys.executable, "-m", "nerf_transporter.cli", "report", str(tmp_path)]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO)
+    process.stdout.close()  # the reader is gone before the tool writes its table
+    stderr = process.stderr.read().decode()
+    assert process.wait(timeout=120) == 1
+    assert "Traceback" not in stderr and "BrokenPipeError" not in stderr

@@ -7,6 +7,7 @@ import contextlib
 import importlib
 import itertools
 import logging
+import os
 import pickle
 import re
 import shutil
@@ -107,7 +108,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     module_name, function_name = TOOLS[command][0].split(":")
     function = getattr(importlib.import_module(module_name), function_name)
-    return int(function(rest) or 0)
+    try:
+        return int(function(rest) or 0)
+    except BrokenPipeError:  # the reader left (`| head`): stop quietly, as a pipeline expects
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
 
 
 def run_name(model: Any, datamodule: Any) -> str:
