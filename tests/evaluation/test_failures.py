@@ -161,9 +161,31 @@ def test_a_cell_of_another_world_or_without_episodes_is_refused(scene, tmp_path,
     assert "no episode results" in capsys.readouterr().err
     (tmp_path / "other.json").write_text("{}")
     assert cli_main(["failures", str(tmp_path / "other.json")]) == 1
-    assert "is not a cell of run-cell" in capsys.readouterr().err
+    assert "other.json lacks method" in capsys.readouterr().err
     assert cli_main(["failures", str(tmp_path / "nothing")]) == 1
     assert "no such directory" in capsys.readouterr().err
+
+
+def test_a_test_record_is_analysed_after_the_cells_named_by_its_file_and_not_paired(
+    scene, tmp_path, capsys
+):
+    env, oracle = scene
+    _cell(tmp_path, [_episode(oracle, True)])
+    episodes = [_episode(_shift_place(oracle, (0.05, 0.0, 0.0)), False, NOT_ACHIEVED)]
+    tested = {"task": "block-insertion", "setting": "normal", "method": "mira", "imagery": "oracle"}
+    record = tested | summarize(episodes) | {"split": "test", "global_step": 2000}
+    path = tmp_path / "mira-on-oracle-imagery.json"
+    path.write_text(
+        json.dumps(record | {"world": world_fingerprint(), "episode_results": episodes})
+    )
+    assert cli_main(["failures", str(path), str(tmp_path / "results"), "--no-progress"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if "| block-insertion |" in line]
+    assert rows[0].startswith("| block-insertion | mira (ours) | 1 | 1 (0) |")
+    assert rows[1].startswith(
+        "| block-insertion | mira, oracle imagery (mira-on-oracle-imagery.json) | 1 | 0 (0) | 0 "
+        "| 1: 1 / 0 / 0 |"
+    )
+    assert len(rows) == 4  # the summary and tilt tables; no pair of the cell with the record
 
 
 def test_mira_is_paired_with_every_other_row_of_its_column_on_common_seeds():

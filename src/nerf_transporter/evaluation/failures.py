@@ -24,6 +24,9 @@ A second table gives success against the tilt of the target aimed at (its normal
 vertical); a third pairs mira with every other row of its column on the same test seeds (both,
 only one, neither succeeded, and the exact McNemar p-value), e.g. mira with NeRF against mira with
 oracle imagery: the NeRF-vs-oracle gap.
+A test record given as a file (`evaluate-checkpoints --split test`, `lightning test`: a checkpoint
+tested outside the table, e.g. on the other imagery) is analysed too, after the cells, named by its
+file and left out of the pairs (`compare-cells` pairs it).
 The scenes are this checkout's: a cell measured in another world (its `world` fingerprint) is
 refused, since its seeds would build other scenes here.
 """
@@ -44,7 +47,7 @@ import numpy as np
 from nerf_transporter import geometry
 from nerf_transporter.atomic import write_json
 from nerf_transporter.console import HelpFormatter, progress_bar
-from nerf_transporter.evaluation.cells import find_records, load_cell, row_key, trained_setting
+from nerf_transporter.evaluation.cells import find_records, load_record, row_key, trained_setting
 from nerf_transporter.evaluation.metrics import paired_comparison
 from nerf_transporter.evaluation.report import (
     METHODS,
@@ -152,7 +155,8 @@ def diagnose_cell(record: Mapping[str, Any], progress: bool = True) -> list[dict
     episodes = record.get("episode_results")
     if not episodes:
         raise FailureAnalysisError(
-            f"{record.get('path')}: no episode results (only run-cell's cells record them)"
+            f"{record.get('path')}: no episode results (run-cell's cells and the test records "
+            "of evaluate-checkpoints and lightning test hold them)"
         )
     if record.get("world") != world_fingerprint():
         raise FailureAnalysisError(
@@ -212,6 +216,7 @@ def summary(record: Mapping[str, Any], diagnoses: list[dict[str, Any]]) -> dict[
         "setting": record["setting"],
         "trained_setting": trained_setting(record),
         "row": row_key(record["method"], record.get("imagery")),
+        "test_record": None if "protocol" in record else Path(record["path"]).name,
         "episodes": len(diagnoses),
         "classes": dict(classes),
         "aimed_off_missed": {part: missed[part] for part in POSE_PARTS},
@@ -245,6 +250,12 @@ def success_by_target_tilt(diagnoses: list[dict[str, Any]]) -> dict[str, list[in
     return bins
 
 
+def _row_label(entry: dict[str, Any]) -> str:
+    """The table's name of a summary's row; a test record's names its file too."""
+    name = METHODS.get(entry["row"], entry["row"])
+    return f"{name} ({entry['test_record']})" if entry.get("test_record") else name
+
+
 def _numbers_text(medians: dict[str, float | None]) -> str:
     return " / ".join("-" if value is None else f"{value:.0f}" for value in medians.values())
 
@@ -275,7 +286,7 @@ def summary_table(summaries: list[dict[str, Any]]) -> tuple[list[str], list[list
         rows.append(
             [
                 column_name(entry["task"], entry["setting"], entry["trained_setting"]),
-                METHODS.get(entry["row"], entry["row"]),
+                _row_label(entry),
                 str(entry["episodes"]),
                 f"{classes.get('success', 0)} ({entry['successes_aimed_off']})",
                 str(classes.get(PICKED_ANOTHER_BODY, 0)),
@@ -300,7 +311,7 @@ def tilt_table(summaries: list[dict[str, Any]]) -> tuple[list[str], list[list[st
     rows = [
         [
             column_name(entry["task"], entry["setting"], entry["trained_setting"]),
-            METHODS.get(entry["row"], entry["row"]),
+            _row_label(entry),
             *("{}/{}".format(*entry["success_by_target_tilt"][name]) for name in bins),
         ]
         for entry in summaries
@@ -335,19 +346,24 @@ def paired_table(records: list[dict[str, Any]]) -> tuple[list[str], list[list[st
     return header, rows
 
 
-def load_cells(paths: list[Path]) -> list[dict[str, Any]]:
-    """The run-cell cells of this checkout's world in the folders given (`<folder>/<column>/
-    <row>.json`, as `results/`; archived worlds left out) and the cell files given, each checked
+def load_records(paths: list[Path]) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """The cells, in table order: run-cell's of this checkout's world in the folders given
+    (`<folder>/<column>/<row>.json`, as `results/`; archived worlds left out) and the cell files
+    given; then the test records among the files given, in their order. Each checked
     (`evaluation/cells.py`), with its path under "path"."""
     folders = [path for path in paths if not path.is_file()]
     cells = [record for record in find_records(folders).records if "protocol" in record]
-    return cells + [load_cell(path) for path in paths if path.is_file()]
+    files = [load_record(path) for path in paths if path.is_file()]
+    cells += [record for record in files if "protocol" in record]
+    tests = [record for record in files if "protocol" not in record]
+    return [record for _, record in in_table_order(cells)], tests
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="nerf-transporter failures",
-        description="Why the test episodes of run-cell's cells failed: each episode's scene is "
+        description="Why the test episodes of run-cell's cells (or of test records) failed: "
+        "each episode's scene is "
         "reset from its seed and its recorded action judged before the robot moves (picked another "
         "body, aimed off in position / tilt / yaw, aimed within tolerance but did not settle, "
         "failed in motion). Needs the world the cells were measured in.",
@@ -357,7 +373,8 @@ def main(argv: list[str] | None = None) -> int:
         "cells",
         nargs="*",
         default=["results"],
-        help="cell files, or folders of cells (<folder>/<column>/<row>.json)",
+        help="cell files, folders of cells (<folder>/<column>/<row>.json), or test record files "
+        "(evaluate-checkpoints --split test, lightning test)",
     )
     parser.add_argument(
         "--json", type=Path, help="also write every episode's diagnosis to this JSON file"
@@ -365,8 +382,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
     try:
-        cells = load_cells([Path(path) for path in args.cells])
-        records = [record for _, record in in_table_order(cells)]
+        cells, tests = load_records([Path(path) for path in args.cells])
+        records = cells + tests
         if not records:
             raise FailureAnalysisError(
                 f"no run-cell cells in {' '.join(args.cells)}; run `nerf-transporter run-cell` first"
@@ -380,7 +397,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     summaries = [entry for entry, _ in analysed]
     tables = [summary_table(summaries), tilt_table(summaries)]
-    if paired := paired_table(records):
+    if paired := paired_table(cells):
         tables.append(paired)
     sys.stdout.write("\n".join(markdown(*table) for table in tables))
     if args.json:
