@@ -20,7 +20,7 @@ import json
 import sys
 from pathlib import Path
 
-from nerf_transporter.evaluation.failures import load_cells
+from nerf_transporter.evaluation.failures import load_records
 from nerf_transporter.evaluation.report import seed_outcomes
 from nerf_transporter.sim import make_env
 from nerf_transporter.sim.tasks.hanging_disks import TEST_COLORS
@@ -63,10 +63,16 @@ def by_disk_colour(cell: dict, colours: dict[int, dict[str, str]]) -> dict[str, 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("cells", type=Path, nargs="+", help="hanging-disks cell files or folders")
+    parser.add_argument(
+        "cells",
+        type=Path,
+        nargs="+",
+        help="hanging-disks cell files or folders, or test record files",
+    )
     parser.add_argument("--json", action="store_true", help="end with one JSON line")
     args = parser.parse_args(argv)
-    cells = [cell for cell in load_cells(args.cells) if cell["task"] == TASK]
+    cells, test_records = load_records(args.cells)
+    cells = [cell for cell in cells + test_records if cell["task"] == TASK]
     if not cells:
         print(f"no {TASK} cells among {', '.join(map(str, args.cells))}", file=sys.stderr)
         return 1
