@@ -306,7 +306,18 @@ def build_cli(
             if ckpt_path is not None and not named and "://" not in str(ckpt_path):
                 weights_only = self.config[subcommand].get("weights_only")
                 check_checkpoint_file(Path(ckpt_path), weights_only)
+            from nerf_transporter.methods import TEST_TIME_OPTIONS
+
+            model = self.config[subcommand].get("model") if subcommand else None
+            init_args = getattr(model, "init_args", None) or {}
+            chosen = {key: init_args[key] for key in TEST_TIME_OPTIONS if key in init_args}
             super()._parse_ckpt_path()
+            # a test-time option (mira's view choice) is the config's, not the checkpoint's
+            model = self.config[subcommand].get("model") if subcommand else None
+            for key, value in chosen.items():
+                model.init_args[key] = value
+                if getattr(model, "dict_kwargs", None):
+                    model.dict_kwargs.pop(key, None)
 
         def _check_arguments(self) -> None:
             """RunArgumentError for options the run would fail on after claiming its folder."""

@@ -87,32 +87,50 @@ def identity_transform(shape: tuple[int, int]) -> Se2Transform:
     return Se2Transform(0.0, (0.0, 0.0), tuple(shape))
 
 
+# How `sample_transform` draws a rotation and a shift:
+# - "uniform": rotation uniform in +-max_angle, each shift uniform up to max_shift_fraction of its side;
+# - "gaussian": rotation ~ N(0, 60 deg), each shift ~ N(0, (shorter side) / 6) pixels (MIRA's and
+#   Ravens' draw: about 27 pixels at 320 x 160).
+AUGMENT_DISTRIBUTIONS = ("uniform", "gaussian")
+GAUSSIAN_ANGLE_STD = math.pi / 3
+GAUSSIAN_SHIFT_STD_FRACTION = 1.0 / 6.0
+
+
 def sample_transform(
     rng: np.random.Generator,
     shape: tuple[int, int],
     keep_inside: Sequence[np.ndarray],
     *,
+    distribution: str = "uniform",
     max_angle: float = math.pi,
     max_shift_fraction: float = 0.5,
     margin: float = 1.0,
     attempts: int = 100,
 ) -> Se2Transform:
-    """Random rotation (uniform in +-max_angle) and shift (uniform up to a fraction of the image)
-    that keeps every pixel of `keep_inside` at least `margin` pixels inside the image.
+    """Random rotation and shift drawn from `distribution` (`AUGMENT_DISTRIBUTIONS`) that keeps
+    every pixel of `keep_inside` at least `margin` pixels inside the image.
 
     Falls back to the identity if no such transform is found in `attempts` draws.
     """
+    if distribution not in AUGMENT_DISTRIBUTIONS:
+        raise ValueError(
+            f"augmentation distribution must be one of {', '.join(AUGMENT_DISTRIBUTIONS)}, "
+            f"got {distribution!r}"
+        )
     rows, cols = shape
     points = np.asarray(keep_inside, dtype=float).reshape(-1, 2)
     for _ in range(attempts):
-        transform = Se2Transform(
-            float(rng.uniform(-max_angle, max_angle)),
-            (
+        if distribution == "uniform":
+            angle = float(rng.uniform(-max_angle, max_angle))
+            shift = (
                 float(rng.uniform(-1.0, 1.0) * max_shift_fraction * rows),
                 float(rng.uniform(-1.0, 1.0) * max_shift_fraction * cols),
-            ),
-            (rows, cols),
-        )
+            )
+        else:
+            angle = float(rng.normal(0.0, GAUSSIAN_ANGLE_STD))
+            sigma = GAUSSIAN_SHIFT_STD_FRACTION * min(rows, cols)
+            shift = (float(rng.normal(0.0, sigma)), float(rng.normal(0.0, sigma)))
+        transform = Se2Transform(angle, shift, (rows, cols))
         moved = np.round(transform.apply_pixels(points))
         inside = (moved >= margin) & (moved <= np.array([rows, cols]) - 1 - margin)
         if inside.all():

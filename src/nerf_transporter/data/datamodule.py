@@ -31,6 +31,8 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 from nerf_transporter import geometry as g
 from nerf_transporter.data import episode as ep
 from nerf_transporter.data.augment import (
+    AUGMENT_DISTRIBUTIONS,
+    Se2Transform,
     augment_view_action,
     identity_transform,
     sample_colour_jitter,
@@ -50,6 +52,9 @@ from nerf_transporter.data.seeds import seed_loader
 from nerf_transporter.sim import TASKS, cameras
 
 FILES_PER_KIND = {"imagery": ["imagery"], "heightmap": ["rgbd"], "state": []}
+# How the negative views of an imagery sample move under SE(2) augmentation: "shared", by the
+# transform of the pick and place views; "own", each by a transform of its own (MIRA's recipe).
+NEGATIVE_TRANSFORMS = ("shared", "own")
 
 
 @dataclass
@@ -156,6 +161,11 @@ def sample_negative_views(
     return rng.choice(others, size=count, replace=False, p=weights)
 
 
+def apply_each(transforms: list[Se2Transform], images: np.ndarray) -> np.ndarray:
+    """Image k of a stack [N, H, W(, C)] moved by transform k."""
+    return np.stack([t.apply_image(image) for t, image in zip(transforms, images, strict=True)])
+
+
 class DemoDataset(Dataset):
     """Samples of one input kind; an item is (demo index, sample seed) from `SeededSampler`."""
 
@@ -171,6 +181,8 @@ class DemoDataset(Dataset):
         n_rotations: int = g.N_ROTATIONS,
         views: np.ndarray | None = None,
         negative_view_scale: float | None = None,
+        augment_distribution: str = "uniform",
+        negative_transform: str = "shared",
     ) -> None:
         if input_kind not in INPUT_KINDS:
             raise ValueError(f"unknown input_kind {input_kind!r}; valid: {', '.join(INPUT_KINDS)}")
@@ -180,6 +192,10 @@ class DemoDataset(Dataset):
         self.pixel_size, self.n_negative_views = pixel_size, n_negative_views
         self.augment, self.colour_augment, self.n_rotations = augment, colour_augment, n_rotations
         self.views, self.negative_view_scale = views, negative_view_scale
+        self.augment_distribution, self.negative_transform = (
+            augment_distribution,
+            negative_transform,
+        )
         self.shape = g.image_shape(pixel_size)
 
     def __len__(self) -> int:
@@ -202,7 +218,9 @@ class DemoDataset(Dataset):
                 continuous_pixel(pose[0], self.pixel_size)
                 for pose in (view_action.pick, view_action.place)
             ]
-            transform = sample_transform(rng, self.shape, pixels)
+            transform = sample_transform(
+                rng, self.shape, pixels, distribution=self.augment_distribution
+            )
             view_action = augment_view_action(view_action, transform, self.pixel_size)
         labels = labels_from_view_action(view_action, self.pixel_size, self.n_rotations)
         sample = {
@@ -223,8 +241,14 @@ class DemoDataset(Dataset):
             rng, self.views, labels.place_view, self.n_negative_views, self.negative_view_scale
         )
         views = np.concatenate([[demo.pick_view, labels.place_view], negatives]).astype(int)
-        colour = self._recolour(rng, transform.apply_images(demo.colour[views]))
-        height = transform.apply_images(demo.height[views])
+        transforms = [transform, transform] + [
+            sample_transform(rng, self.shape, [], distribution=self.augment_distribution)
+            if self.augment and self.negative_transform == "own"
+            else transform
+            for _ in negatives
+        ]
+        colour = self._recolour(rng, apply_each(transforms, demo.colour[views]))
+        height = apply_each(transforms, demo.height[views])
         images = network_input(colour, height)
         sample["pick_image"] = images[0]
         sample["place_images"] = images[1:]
@@ -247,7 +271,11 @@ class RavensDataModule(pl.LightningDataModule):
     first `test_episodes` test seeds, run in `test_setting` (default: `setting`) by `test_workers`
     worker processes (default: one per core available to the process; 1: in the process itself).
     `pin_memory` puts batches in page-locked memory for a faster copy to a GPU (with `num_workers`
-    loading them). `augment` moves each training sample's images by a random SE(2) transform;
+    loading them). `augment` moves each training sample's images by a random SE(2) transform,
+    drawn from `augment_distribution` ("uniform": any rotation, shifts up to half the image;
+    "gaussian": MIRA's N(0, 60 deg) rotation and N(0, 1/6 of the shorter side) shifts,
+    `augment.AUGMENT_DISTRIBUTIONS`); an imagery sample's negative views move with the pick and
+    place views (`negative_transform` "shared") or each by a transform of its own ("own", MIRA's).
     `colour_augment` also changes their colour at random (hue turned around the whole circle,
     saturation and value scaled; `augment.sample_colour_jitter`), for image methods tested on
     object colours no training seed has (hanging-disks).
@@ -271,6 +299,8 @@ class RavensDataModule(pl.LightningDataModule):
         negative_view_scale: float | None = None,
         augment: bool = True,
         colour_augment: bool = False,
+        augment_distribution: str = "uniform",
+        negative_transform: str = "shared",
         generate_missing: bool = True,
         seed: int = 0,
         input_kind: str | None = None,
@@ -299,6 +329,16 @@ class RavensDataModule(pl.LightningDataModule):
             raise ValueError(
                 f"negative_view_scale must be > 0 (radians), got {negative_view_scale}"
             )
+        if augment_distribution not in AUGMENT_DISTRIBUTIONS:
+            raise ValueError(
+                f"augment_distribution must be one of {', '.join(AUGMENT_DISTRIBUTIONS)}, "
+                f"got {augment_distribution!r}"
+            )
+        if negative_transform not in NEGATIVE_TRANSFORMS:
+            raise ValueError(
+                f"negative_transform must be one of {', '.join(NEGATIVE_TRANSFORMS)}, "
+                f"got {negative_transform!r}"
+            )
         GenerationConfig(
             task, setting, "train", imagery, pixel_size, nerf_views, tuple(nerf_image_size)
         )  # validates
@@ -307,6 +347,10 @@ class RavensDataModule(pl.LightningDataModule):
         self.imagery, self.pixel_size = imagery, pixel_size
         self.n_negative_views, self.augment = n_negative_views, augment
         self.colour_augment = colour_augment
+        self.augment_distribution, self.negative_transform = (
+            augment_distribution,
+            negative_transform,
+        )
         self.negative_view_scale = negative_view_scale
         self.generate_missing, self.seed, self.input_kind = generate_missing, seed, input_kind
         self.n_val_demos, self.samples_per_epoch, self.n_rotations = (
@@ -420,6 +464,8 @@ class RavensDataModule(pl.LightningDataModule):
                 input_kind,
                 augment=self.augment,
                 colour_augment=self.colour_augment,
+                augment_distribution=self.augment_distribution,
+                negative_transform=self.negative_transform,
                 **options,
             )
         if stage in (None, "fit", "validate") and self.n_val_demos > 0 and self.val_dataset is None:

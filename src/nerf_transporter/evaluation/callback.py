@@ -5,7 +5,9 @@ of fit it runs `episodes` validation episodes (`splits.split_seed("validation", 
 `eval/success_rate`, its 95% Wilson interval (`eval/success_rate_low`, `eval/success_rate_high`) and
 `eval/episodes`, the rate of the project's stricter 6-DoF check with its interval
 (`eval/strict_success_rate`, `eval/strict_success_rate_low`, `eval/strict_success_rate_high`; not
-logged where an episode that ran was not judged by it), plus an image strip of the first rollouts
+logged where an episode that ran was not judged by it), for `mira` the view search against the
+true view (`eval/view_top1`, `eval/view_within_one_step`, `eval/true_view_rank_median`,
+`evaluation.view_search`; from this process's episodes under DDP), plus an image strip of the first rollouts
 (top-down view before the action with the chosen pick and place drawn in, and after it; captioned
 with the seed and the outcome or its reason, framed lime on success, magenta on failure, grey on
 error). The first `video_episodes` of each round are recorded as mp4s in the run folder
@@ -46,6 +48,8 @@ from nerf_transporter.evaluation.rollout import (
     Evaluator,
 )
 from nerf_transporter.evaluation.video import draw_action, gif_bytes
+from nerf_transporter.evaluation.view_search import summary as view_search_summary
+from nerf_transporter.evaluation.view_search import view_search_text
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.splits import split_seed
 
@@ -195,6 +199,10 @@ class SuccessRateCallback(Callback):
                 | {"ci_low": strict_low, "ci_high": strict_high}
             )
             summary += f", strict 6-DoF {strict_cell}"
+        view = view_search_summary([result.view_search for result in results])
+        if view is not None:  # mira: where the view search placed against the true view
+            figures |= {f"eval/{name}": value for name, value in view.items()}
+            summary += f"; view search: {view_search_text(view)}"
         rank_zero_info(
             f"step {trainer.global_step}: validation success (n, 95% CI) {summary}"
             + (

@@ -30,6 +30,8 @@ from nerf_transporter.data.observation import IMAGERY_KINDS
 from nerf_transporter.evaluation.report import cell
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
 from nerf_transporter.evaluation.testing import checkpoint_step, results_record
+from nerf_transporter.evaluation.view_search import view_search_text
+from nerf_transporter.methods.mira import VIEW_CHOICES
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.splits import split_seed
 
@@ -144,8 +146,12 @@ def validation_records(
     return records
 
 
-def load_checkpoint(path: Path, device: torch.device) -> tuple[torch.nn.Module, object]:
-    """(method, datamodule) rebuilt from a checkpoint written by a LightningCLI run."""
+def load_checkpoint(
+    path: Path, device: torch.device, **test_time_options: Any
+) -> tuple[torch.nn.Module, object]:
+    """(method, datamodule) rebuilt from a checkpoint written by a LightningCLI run, with the
+    method's test-time options (`Method.test_time_options`, e.g. mira's `view_choice`) where given
+    instead of the checkpoint's; ValueError for an option the method does not take."""
     from nerf_transporter.data.datamodule import RavensDataModule
     from nerf_transporter.methods import METHODS
 
@@ -157,7 +163,16 @@ def load_checkpoint(path: Path, device: torch.device) -> tuple[torch.nn.Module, 
             f"{path} does not name one of the methods ({', '.join(sorted(classes))}) in its "
             "hyper-parameters (_class_path); it was not written by a `lightning fit` run"
         )
-    model = classes[class_name].load_from_checkpoint(path, map_location=device, weights_only=True)
+    cls = classes[class_name]
+    unknown = sorted(set(test_time_options) - set(cls.test_time_options))
+    if unknown:
+        raise ValueError(
+            f"{path}: {cls.name} takes no test-time option {', '.join(unknown)} (its options: "
+            f"{', '.join(cls.test_time_options) or 'none'})"
+        )
+    model = cls.load_from_checkpoint(
+        path, map_location=device, weights_only=True, **test_time_options
+    )
     datamodule = RavensDataModule.load_from_checkpoint(path, weights_only=True)
     return model.to(device).eval(), datamodule
 
@@ -175,21 +190,24 @@ def evaluate_checkpoints(
     workers: int | None = None,
     video_dir: Path | None = None,
     only: list[Path] | None = None,
+    view_choice: str | None = None,
 ) -> list[dict]:
     """Evaluate every checkpoint of a run (or the `only` ones) on the first `episodes` seeds of
     `split`, in `workers` worker processes (default: one per available core; 1: in this process);
-    with `video_dir`, every episode is recorded under `<video_dir>/<checkpoint>/`."""
+    with `video_dir`, every episode is recorded under `<video_dir>/<checkpoint>/`; `view_choice`
+    (mira) tests under that view-choice rule instead of the checkpoint's."""
     checkpoints = checkpoint_steps(run_dir) if only is None else chosen_checkpoints(run_dir, only)
     if not checkpoints:
         raise FileNotFoundError(f"no readable .ckpt files under {run_dir}")
     device = device or torch.device("cuda" if torch.cuda.is_available() else "cpu")
     seeds = [split_seed(split, index) for index in range(episodes)]
     workers, threads = share_cores(len(seeds), workers)
+    options = {} if view_choice is None else {"view_choice": view_choice}
     records, evaluator = [], None
     try:
         for step, path in checkpoints:
             try:
-                model, datamodule = load_checkpoint(path, device)
+                model, datamodule = load_checkpoint(path, device, **options)
             except Exception as error:  # a checkpoint of another program, or damaged past its step
                 log.warning("skipping checkpoint %s that cannot be loaded: %s", path, error)
                 continue
@@ -224,7 +242,10 @@ def evaluate_checkpoints(
                 global_step=step,
                 wall_s=time.perf_counter() - start,
             )
-            write_new_json(run_dir / "evaluation", f"{path.stem}-{split}-{spec.setting}", record)
+            suffix = f"-{view_choice}" if view_choice else ""
+            write_new_json(
+                run_dir / "evaluation", f"{path.stem}-{split}-{spec.setting}{suffix}", record
+            )
             records.append(record)
     finally:
         if evaluator is not None:
@@ -276,6 +297,14 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="write one captioned mp4 per episode into <video>/<checkpoint>/",
     )
+    parser.add_argument(
+        "--view-choice",
+        choices=VIEW_CHOICES,
+        default=None,
+        help="mira: test under this view-choice rule instead of the checkpoint's (max_logit: the "
+        "view with the highest raw logit; view_softmax: MIRA's, each view's own softmax); the "
+        "records are named with it",
+    )
     parser.add_argument("--json", action="store_true", help="end with one JSON line")
     args = parser.parse_args(argv)
     if args.episodes < 1:
@@ -294,16 +323,21 @@ def main(argv: list[str] | None = None) -> int:
             workers=args.eval_workers,
             video_dir=args.video,
             only=args.checkpoint,
+            view_choice=args.view_choice,
         )
     except (FileNotFoundError, ValueError) as error:
         print(f"nerf-transporter evaluate-checkpoints: {error}", file=sys.stderr)
         return 1
     best = best_record(records)
-    print(f"| checkpoint | step | {args.split} success (n, 95% CI) |\n| --- | --- | --- |")
+    searched = any("view_search" in record for record in records)
+    view_header = " | view search: true view / within one step / median rank" if searched else ""
+    print(f"| checkpoint | step | {args.split} success (n, 95% CI){view_header} |")
+    print("| --- | --- | --- |" + (" --- |" if searched else ""))
     for record in records:
         mark = " (best)" if record is best else ""
         name = Path(record["checkpoint"]).name
-        print(f"| {name}{mark} | {record['global_step']} | {cell(record)} |")
+        view = f" | {view_search_text(record.get('view_search'))}" if searched else ""
+        print(f"| {name}{mark} | {record['global_step']} | {cell(record)}{view} |")
     if best is None:
         print(
             "nerf-transporter evaluate-checkpoints: every evaluation had erred episodes (see the "

@@ -46,6 +46,7 @@ from nerf_transporter.data.observation import (
 )
 from nerf_transporter.evaluation.cache import ImageryCache, config_hash
 from nerf_transporter.evaluation.video import EpisodeVideo, plan_panel
+from nerf_transporter.evaluation.view_search import true_action, view_search_record
 from nerf_transporter.parallel import available_cores
 from nerf_transporter.sim.fingerprint import world_fingerprint
 from nerf_transporter.sim.tasks import POSE_ERROR_KEYS, pose_error_text
@@ -159,8 +160,10 @@ class EpisodeResult:
     far the object ended from its target (the task's errors: position in metres, tilt and yaw in
     radians); `strict_success`: the project's stricter 6-DoF check (None where the episode erred or
     the environment did not judge it, as in records written before it was recorded), with its
-    errors in `strict_errors`; `video`: the episode's mp4, if recorded; `frames`: top-down colour
-    before and after the action, if recorded."""
+    errors in `strict_errors`; `video`: the episode's mp4, if recorded; `view_search`: for a method
+    that reports its view search (`mira`), where it placed against the true view
+    (`evaluation.view_search`); `frames`: top-down colour before and after the action, if
+    recorded."""
 
     seed: int
     success: bool
@@ -173,6 +176,7 @@ class EpisodeResult:
     strict_success: bool | None = None
     strict_errors: dict[str, float] = field(default_factory=dict)
     video: str | None = None
+    view_search: dict[str, Any] | None = None
     frames: np.ndarray | None = None
 
     @property
@@ -221,13 +225,16 @@ def _action_record(action: dict) -> dict[str, list[float]]:
     return record
 
 
-def policy_action(method: Policy, observation: dict) -> dict:
-    """`method.act(observation)` in eval mode without gradients; the training mode is restored."""
+def policy_action(method: Policy, observation: dict) -> tuple[dict, Any]:
+    """(`method.act(observation)`, its search or None) in eval mode without gradients; the
+    training mode is restored. A method with `act_with_search` (`mira`) reports its search."""
     was_training = method.training
     method.train(False)
     try:
         with torch.no_grad():
-            return method.act(observation)
+            if hasattr(method, "act_with_search"):
+                return method.act_with_search(observation)
+            return method.act(observation), None
     finally:
         method.train(was_training)
 
@@ -365,7 +372,7 @@ class Evaluator:
         timings: dict[str, float] = {}
         start = time.perf_counter()
         stage, rigs, cached, frames, action_record = "imagery cache", (), None, [], None
-        video, info, strict_success = None, {}, None
+        video, info, strict_success, view_search = None, {}, None, None
         try:
             imagery = self._load_imagery(seed) if input_kind == "imagery" else None
             cached = imagery is not None if input_kind == "imagery" else None
@@ -384,9 +391,11 @@ class Evaluator:
             timings["observation_s"] = time.perf_counter() - mark
             stage = "act"
             mark = time.perf_counter()
-            action = policy_action(method, observation)
+            action, search = policy_action(method, observation)
             action_record = _action_record(action)
             timings["act_s"] = time.perf_counter() - mark
+            if search is not None:  # before the step moves the object
+                view_search = self._view_search(env, observation, action, search, method, seed)
             stage = "step"
             mark = time.perf_counter()
             if video is not None:
@@ -433,12 +442,30 @@ class Evaluator:
                 for key, value in (info.get("strict_errors") or {}).items()
                 if value is not None
             },
+            view_search=view_search,
             frames=np.stack(frames) if record_frames and len(frames) == 2 else None,
         )
         if video is not None:
             written = video.close(result.outcome_text(), result.to_json())
             result.video = None if written is None else str(written)
         return result
+
+    def _view_search(
+        self, env: Any, observation: dict, action: dict, search: Any, method: Policy, seed: int
+    ) -> dict[str, Any] | None:
+        """The episode's `view_search` record; None (with a warning) where it cannot be made,
+        which leaves the episode itself as it is."""
+        try:
+            return view_search_record(
+                search,
+                true_action(env.task, env, action["pick"]),
+                observation["imagery"]["views"],
+                self.spec.pixel_size,
+                method.n_rotations,
+            )
+        except Exception:
+            log.warning("episode with seed %d: no view-search record", seed, exc_info=True)
+            return None
 
     # -- videos -------------------------------------------------------------------------------
 

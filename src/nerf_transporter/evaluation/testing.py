@@ -42,6 +42,7 @@ from nerf_transporter.atomic import write_new_json
 from nerf_transporter.evaluation.metrics import summarize
 from nerf_transporter.evaluation.report import cell
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
+from nerf_transporter.evaluation.view_search import summary as view_search_summary
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.pretrained import PRETRAINED_DIR
 from nerf_transporter.sim.fingerprint import world_fingerprint
@@ -83,9 +84,13 @@ def results_record(
 
     "setting" is the setting the episodes ran in, "trained_setting" the one the policy was trained
     in (its DataModule's `setting`); "imagery" is how the views were built for an imagery method
-    (nerf, oracle), None for the methods that see the RGB-D heightmap or the state.
+    (nerf, oracle), None for the methods that see the RGB-D heightmap or the state. A method's
+    test-time options (`Method.test_time_options`: mira's view choice) and, for mira, the view
+    search's figures (`evaluation.view_search.summary`) follow the success figures.
     """
     results = sorted(results, key=lambda result: result["seed"])
+    view_search = view_search_summary([result.get("view_search") for result in results])
+    options = {key: getattr(method, key) for key in getattr(method, "test_time_options", ())}
     return {
         "method": method_name(method),
         "task": spec.task,
@@ -97,6 +102,8 @@ def results_record(
         "global_step": global_step,
         "world": world_fingerprint(),
         **summarize(results),
+        **({"test_time_options": options} if options else {}),
+        **({"view_search": view_search} if view_search else {}),
         "wall_s": wall_s,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "episode_results": results,

@@ -14,9 +14,14 @@ from nerf_transporter.methods.transporter_se3 import TransporterSE3
 METHODS: dict[str, type[Method]] = {
     cls.name: cls for cls in (Mira, TransporterSE2, TransporterSE3, Form2Fit, GTStateMLP)
 }
+# Arguments a checkpoint is tested under as the test's config says, not as it was fitted with.
+TEST_TIME_OPTIONS = tuple(
+    sorted({option for cls in METHODS.values() for option in cls.test_time_options})
+)
 
 __all__ = [
     "METHODS",
+    "TEST_TIME_OPTIONS",
     "Form2Fit",
     "GTStateMLP",
     "Method",

@@ -42,6 +42,8 @@ class Method(L.LightningModule):
 
     name: ClassVar[str]
     input_kind: ClassVar[str]
+    # arguments a checkpoint is tested under as the test's config names them (`lightning test`)
+    test_time_options: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, lr: float = 1e-4, log_images_every_n_steps: int = 250) -> None:
         super().__init__()

@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
@@ -46,24 +48,71 @@ def pixels_over_workspace(
     )
 
 
+# How `act` ranks the views (docs/conventions.md, "Labels and actions"):
+# - "max_logit": the view holding the highest raw transport logit over all views;
+# - "view_softmax": each view's logits through a softmax of their own, the view whose highest
+#   probability is largest (MIRA's rule).
+VIEW_CHOICES = ("max_logit", "view_softmax")
+
+
+@dataclass(frozen=True)
+class PlaceSearch:
+    """One transport search of the imagery views for a pick: each view's score under the view-choice
+    rule (higher is better) and its best placement (rotation bin, row, col)."""
+
+    pick: tuple[int, int]  # (row, col) in the top-down view
+    view_scores: np.ndarray  # [V]
+    view_best: np.ndarray  # [V, 3] int: rotation bin, row, col
+
+    @property
+    def chosen_view(self) -> int:
+        """The view `act` places in: the highest score, the first among equals."""
+        return int(np.argmax(self.view_scores))
+
+    def view_rank(self, view: int) -> int:
+        """Rank of `view` by score, 0 for the chosen one (equal scores rank in index order, as
+        `chosen_view` breaks ties)."""
+        score = self.view_scores[view]
+        return int((self.view_scores > score).sum() + (self.view_scores[:view] == score).sum())
+
+
+def view_scores(logits: torch.Tensor, view_choice: str) -> torch.Tensor:
+    """Score of each view from its transport logits [V, R, H, W] (unreachable pixels -inf)."""
+    best = logits.flatten(1).amax(1)
+    if view_choice == "max_logit":
+        return best
+    # the log of the view's highest own-softmax probability; a view with no reachable pixel: -inf
+    own = best - logits.flatten(1).logsumexp(1)
+    return torch.where(torch.isfinite(best), own, best)
+
+
 class Mira(AttentionTransportMethod):
     """Pick on the top-down imagery view; place by one transport search over all views.
 
     Training: the place label lies in view 0 of `place_images` (the positive view); the other K views
     are negatives of the same scene, and one softmax runs over views x rotations x pixels.
-    `view_chunk` views are correlated at a time in `act` (bounds memory over a 49- or 121-view grid).
+    `act` searches every view (`place_search`) and places at the best placement of the view that
+    `view_choice` ranks first (`VIEW_CHOICES`); the rule is a test-time option: a checkpoint is
+    tested under the one its config (or `evaluate-checkpoints --view-choice`) names.
+    `view_chunk` views are correlated at a time (bounds memory over a 49- or 121-view grid).
     `act` places only at pixels over the workspace (`pixels_over_workspace`): a steep view's edge
     pixels see the table beyond it, where no target lies and the robot does not reach.
     """
 
     name = "mira"
     input_kind = "imagery"
+    test_time_options: ClassVar[tuple[str, ...]] = ("view_choice", "view_chunk")
 
-    def __init__(self, view_chunk: int = 8, **kwargs: Any) -> None:
+    def __init__(self, view_chunk: int = 8, view_choice: str = "max_logit", **kwargs: Any) -> None:
         super().__init__(**kwargs)
         if view_chunk < 1:
             raise ValueError(f"view_chunk must be >= 1, got {view_chunk}")
+        if view_choice not in VIEW_CHOICES:
+            raise ValueError(
+                f"view_choice must be one of {', '.join(VIEW_CHOICES)}, got {view_choice!r}"
+            )
         self.view_chunk = view_chunk
+        self.view_choice = view_choice
 
     def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
         return self.pick_place_losses(batch["pick_image"], batch["place_images"], batch)
@@ -87,7 +136,55 @@ class Mira(AttentionTransportMethod):
         }
 
     @torch.no_grad()
+    def place_logits(
+        self, images: torch.Tensor, height: np.ndarray, views: np.ndarray, pick: tuple[int, int]
+    ) -> Iterator[tuple[int, torch.Tensor]]:
+        """(first view, logits [chunk, R, H, W]) of the transport over the views, `view_chunk` at a
+        time, for the pick pixel of the top-down view; pixels not over the workspace are -inf.
+
+        images: network inputs [V, 6, H, W]; height [V, H, W]; views [V, 2] (roll, pitch).
+        """
+        top = g.top_down_view_index(views)
+        pick_image = images[top : top + 1].to(self.device)
+        kernels = self.transport.kernels(pick_image, torch.tensor([pick], device=self.device))
+        kernel_f = kernel_spectrum(kernels, height.shape[1:])
+        rotations = g.view_rotations(views)
+        for start in range(0, len(views), self.view_chunk):
+            stop = min(start + self.view_chunk, len(views))
+            reachable = torch.from_numpy(
+                np.stack(
+                    [
+                        pixels_over_workspace(height[v], rotations[v], self.pixel_size)
+                        for v in range(start, stop)
+                    ]
+                )
+            ).to(self.device)
+            query = self.transport.query_features(images[None, start:stop].to(self.device))
+            logits = correlate_spectrum(query, kernel_f, self.crop_size)[0]
+            yield start, logits.masked_fill(~reachable[:, None], -float("inf"))
+
+    def place_search(
+        self, images: torch.Tensor, height: np.ndarray, views: np.ndarray, pick: tuple[int, int]
+    ) -> PlaceSearch:
+        """Every view's score under `view_choice` and its best placement (`place_logits`)."""
+        scores, best = [], []
+        for _, logits in self.place_logits(images, height, views, pick):
+            scores.append(view_scores(logits, self.view_choice).cpu())
+            flat = logits.flatten(1).argmax(1).cpu().numpy()
+            best.append(np.stack(np.unravel_index(flat, logits.shape[1:]), axis=1))
+        return PlaceSearch(
+            pick=pick,
+            view_scores=torch.cat(scores).double().numpy(),
+            view_best=np.concatenate(best).astype(int),
+        )
+
+    @torch.no_grad()
     def act(self, observation: dict[str, Any]) -> Action:
+        return self.act_with_search(observation)[0]
+
+    @torch.no_grad()
+    def act_with_search(self, observation: dict[str, Any]) -> tuple[Action, PlaceSearch]:
+        """`act`, with the search it chose from (recorded by evaluation: `evaluation.view_search`)."""
         if "imagery" not in observation:
             raise ValueError(f"observation has no 'imagery' entry (keys: {sorted(observation)})")
         imagery = observation["imagery"]
@@ -100,31 +197,11 @@ class Mira(AttentionTransportMethod):
         check_image_shape(height.shape[1:], self.pixel_size, "imagery")
         images = network_input(imagery["colour"], height)
         top = g.top_down_view_index(views)
-        pick_image = images[top : top + 1].to(self.device)
-        pick = self.predict_pick(pick_image)
-        kernels = self.transport.kernels(pick_image, torch.tensor([pick], device=self.device))
-        kernel_f = kernel_spectrum(kernels, height.shape[1:])
-        reachable_pixels = torch.from_numpy(
-            np.stack(
-                [
-                    pixels_over_workspace(view_height, rotation, self.pixel_size)
-                    for view_height, rotation in zip(height, g.view_rotations(views), strict=True)
-                ]
-            )
-        ).to(self.device)
-        best_value, best = -float("inf"), (0, 0, 0, 0)
-        for start in range(0, len(views), self.view_chunk):
-            chunk = images[None, start : start + self.view_chunk].to(self.device)
-            query = self.transport.query_features(chunk)
-            logits = correlate_spectrum(query, kernel_f, self.crop_size)[0]
-            reachable = reachable_pixels[start : start + self.view_chunk, None]
-            logits = logits.masked_fill(~reachable, -float("inf"))
-            value = float(logits.max())
-            if value > best_value:
-                view, rotation, row, col = np.unravel_index(int(logits.argmax()), logits.shape)
-                best_value, best = value, (start + int(view), int(rotation), int(row), int(col))
-        view, rotation, row, col = best
-        return action_from_labels(
+        pick = self.predict_pick(images[top : top + 1].to(self.device))
+        search = self.place_search(images, height, views, pick)
+        view = search.chosen_view
+        rotation, row, col = (int(v) for v in search.view_best[view])
+        action = action_from_labels(
             pick,
             float(height[top][pick]),
             (row, col),
@@ -134,3 +211,4 @@ class Mira(AttentionTransportMethod):
             pixel_size=self.pixel_size,
             n_rotations=self.n_rotations,
         )
+        return action, search
