@@ -1,5 +1,6 @@
 """`nerf-transporter run-cell --task T --method M [--setting S] [--test-setting S] [--imagery
-oracle]`: one cell of the results table, start to finish and resumable (README, "Results").
+oracle]`: one cell of the results table, start to finish and resumable (docs/results.md, "How a
+cell is measured").
 
 fit (`configs/<task>[_<setting>].yaml` + `configs/model/<method>.yaml` + any `--config` overlays,
 with the budget options applied) -> the checkpoint with the best closed-loop validation success

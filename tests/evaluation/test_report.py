@@ -9,7 +9,13 @@ import pytest
 from nerf_transporter.cli import main as cli_main
 from nerf_transporter.evaluation.cells import column_folder, cross_protocol
 from nerf_transporter.evaluation.metrics import wilson_interval
-from nerf_transporter.evaluation.report import README_END, README_START, table_plot
+from nerf_transporter.evaluation.report import (
+    README_END,
+    README_START,
+    RESULTS_DOC_END,
+    RESULTS_DOC_START,
+    table_plot,
+)
 from nerf_transporter.evaluation.report import main as report_main
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
@@ -144,10 +150,12 @@ def write_cell(
     fit=CPU,
     trained=None,
     strict=None,
+    won=None,
 ):
     """A cell as run-cell writes it (the fields the report reads, its protocol and overlays),
     trained in `trained` (default: the setting it is tested in; another: a cross-setting cell
-    naming its fit), with `strict` strict 6-DoF successes where given."""
+    naming its fit), with `strict` strict 6-DoF successes where given, and, where `won` is given,
+    its episodes: test seeds 1, 3, 5, ..., the `won`-th of them (counted from 0) succeeded."""
     trained = trained or setting
     column = column_folder(task, setting, trained)
     low, high = wilson_interval(successes, episodes)
@@ -183,9 +191,22 @@ def write_cell(
         "machine": {"fit": [fit], "test": CPU},
         "created": "2026-11-25T00:00:00+00:00",
     }
+    if won is not None:
+        record["episode_results"] = [
+            {"seed": 2 * index + 1, "success": index in won} for index in range(episodes)
+        ]
     path = root / column / f"{row}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(record))
+
+
+def _docs(tmp_path):
+    """A README and a results page, each with its results block and text around it."""
+    readme, results_doc = tmp_path / "README.md", tmp_path / "docs" / "results.md"
+    readme.write_text(f"# title\n\n{README_START}\nold text\n{README_END}\n\nthe rest\n")
+    results_doc.parent.mkdir()
+    results_doc.write_text(f"# results\n\n{RESULTS_DOC_START}\nold\n{RESULTS_DOC_END}\n\nend\n")
+    return readme, results_doc
 
 
 def test_cells_of_a_results_folder_fill_their_rows_the_plot_and_the_readme(tmp_path, capsys):
@@ -205,10 +226,10 @@ def test_cells_of_a_results_folder_fill_their_rows_the_plot_and_the_readme(tmp_p
         overlays=width64,
         fit=h100,
     )
-    readme = tmp_path / "README.md"
-    readme.write_text(f"# title\n\n{README_START}\nold text\n{README_END}\n\nthe rest\n")
+    readme, results_doc = _docs(tmp_path)
     plot = tmp_path / "results" / "table1.png"
-    assert report_main([str(results), "--readme", str(readme), "--plot", str(plot)]) == 0
+    argv = [str(results), "--readme", str(readme), "--results-doc", str(results_doc)]
+    assert report_main(argv + ["--plot", str(plot)]) == 0
     rows = capsys.readouterr().out.splitlines()[2:]
     assert rows[0].startswith("| mira (ours) | 81% (100, 72-87) / - |  |")
     assert rows[2].startswith("| mira, oracle imagery | 90% (100, 83-94) / - |  |")
@@ -225,6 +246,18 @@ def test_cells_of_a_results_folder_fill_their_rows_the_plot_and_the_readme(tmp_p
     )
     assert "| mira, oracle imagery | 90% (100, 83-94) / - |" in text
     assert "![results table as bars](results/table1.png)" in text
+    # the README holds the table; the machines and the commands are the results page's
+    assert "[docs/results.md](docs/results.md)" in text
+    assert "AMD EPYC" not in text and "run-cell --task" not in text
+    page = results_doc.read_text()
+    assert page.startswith(f"# results\n\n{RESULTS_DOC_START}\n") and page.endswith(
+        f"{RESULTS_DOC_END}\n\nend\n"
+    )
+    assert "old" not in page and "2 of 48 cells measured" in page
+    assert "| mira, oracle imagery | 90% (100, 83-94) / - |" in page
+    assert "![results table as bars](../results/table1.png)" in page
+    assert "[Citation](../README.md#citation)" in page
+    text = page
     assert (
         "- AMD EPYC (2 cells): mira (ours) on block-insertion; mira, oracle imagery on "
         "block-insertion\n- NVIDIA H100 80GB HBM3 (1 cell): Form2Fit on place-red-in-green "
@@ -278,8 +311,17 @@ def test_report_names_a_readme_without_markers_and_a_missing_folder(tmp_path, ca
     readme = tmp_path / "README.md"
     readme.write_text("# no markers\n")
     assert report_main([str(tmp_path), "--readme", str(readme)]) == 2
-    assert "the README has no results block" in capsys.readouterr().err
+    assert f"{readme}: no results block: put the lines {README_START}" in capsys.readouterr().err
     assert readme.read_text() == "# no markers\n"
+    # a results page without its markers: neither file is written, the page is named
+    readme.write_text(f"{README_START}\nold\n{README_END}\n")
+    page = tmp_path / "results.md"
+    page.write_text(f"{README_START}\n{README_END}\n")  # the README's markers, not the page's
+    assert report_main([str(tmp_path), "--readme", str(readme), "--results-doc", str(page)]) == 2
+    assert f"{page}: no results block: put the lines {RESULTS_DOC_START}" in (
+        capsys.readouterr().err
+    )
+    assert readme.read_text() == f"{README_START}\nold\n{README_END}\n"
     assert report_main([str(tmp_path / "missing")]) == 2
     assert "no such directory" in capsys.readouterr().err
 
@@ -410,21 +452,21 @@ def test_an_archived_world_renders_under_its_own_heading_never_in_the_table(tmp_
     write_cell(results, "form2fit", "hanging-disks", "normal", 9, 100)
     archive = results / "archive" / f"world-{old}"
     real_cell(archive, world=old)
-    readme = tmp_path / "README.md"
-    readme.write_text(f"{README_START}\n{README_END}\n")
-    assert report_main([str(results), "--readme", str(readme)]) == 0
+    readme, results_doc = _docs(tmp_path)
+    argv = [str(results), "--readme", str(readme), "--results-doc", str(results_doc)]
+    assert report_main(argv) == 0
     current, archived = capsys.readouterr().out.split(f"\nArchived world {old} ({archive}: 1 cells")
     assert "| mira (ours) |  |" in current and "9% (100, 5-16)" in current
     assert "| mira (ours) | 77% (100, 68-84) / - |" in archived and "9% (100" not in archived
-    text = readme.read_text()
-    assert (
+    measured = (
         f"1 of 48 cells measured in `results/`, in this checkout's world `{world_fingerprint()}`"
-        in text
     )
-    current, archived = text.split(f"#### Archived world `{old}`")
-    assert "| mira (ours) |  |" in current and "77% (100, 68-84)" not in current
-    assert f"kept in `results/archive/world-{old}/`" in archived
-    assert "| mira (ours) | 77% (100, 68-84) / - |" in archived
+    text = readme.read_text()
+    assert measured in text and old not in text and "77% (100, 68-84)" not in text
+    # the results page names the archive and where it lies, never mixing its cells in
+    page = results_doc.read_text()
+    assert measured in page and "77% (100, 68-84)" not in page
+    assert f"Archived world `{old}`: 1 cells, kept in `results/archive/world-{old}/`" in page
     # the archive folder itself, and a cell of one world in another's archive
     assert report_main([str(archive)]) == 0
     assert f"Archived world {old}" in capsys.readouterr().out
@@ -440,10 +482,10 @@ def test_the_table_holds_both_settings_both_measures_and_the_paper_under_its_lab
     results = tmp_path / "results"
     write_cell(results, "mira", "block-insertion", "normal", 81, 100, "nerf", strict=70)
     write_cell(results, "mira", "block-insertion", "challenging", 40, 100, "nerf", trained="normal")
-    readme = tmp_path / "README.md"
-    readme.write_text(f"{README_START}\n{README_END}\n")
+    readme, results_doc = _docs(tmp_path)
     plot = tmp_path / "table1.png"
-    assert report_main([str(results), "--readme", str(readme), "--plot", str(plot)]) == 0
+    argv = [str(results), "--readme", str(readme), "--results-doc", str(results_doc)]
+    assert report_main(argv + ["--plot", str(plot)]) == 0
     header, _, mira, paper = capsys.readouterr().out.splitlines()[:4]
     assert header == (
         "| method | block-insertion | block-insertion Challenging | place-red-in-green | "
@@ -456,7 +498,8 @@ def test_the_table_holds_both_settings_both_measures_and_the_paper_under_its_lab
     )
     # the paper's Challenging column stands under ours of its label: trained Normal
     assert paper == "| paper: its method | 80% |  | 86% | 50% | 40% |  | 32% |  |"
-    text = readme.read_text()
+    assert "2 of 48 cells measured" in readme.read_text()
+    text = results_doc.read_text()
     assert (
         "2 of 48 cells measured" in text and 'reads "under out-of-distribution rotations"' in text
     )
@@ -503,4 +546,30 @@ def test_a_cell_trained_and_tested_challenging_lies_in_its_own_column_folder(tmp
     assert (
         "holds the cell place-red-in-green-challenging-trained-challenging/form2fit.json"
         in capsys.readouterr().err
+    )
+
+
+def test_the_results_page_pairs_mira_with_each_row_on_their_common_seeds(tmp_path, capsys):
+    """mira's seeds against each other row's, column by column (exact McNemar p); empty where a
+    cell is missing or holds no episodes."""
+    results = tmp_path / "results"
+    write_cell(results, "mira", "block-insertion", "normal", 12, 20, "nerf", won=range(12))
+    write_cell(results, "transporter_se2", "block-insertion", "normal", 2, 20, won={10, 11})
+    write_cell(results, "form2fit", "block-insertion", "normal", 5, 20, won={0, 1, 2, 15, 16})
+    write_cell(results, "transporter_se3", "block-insertion", "normal", 9, 20)  # no episodes
+    write_cell(results, "form2fit", "hanging-disks", "normal", 4, 20, won=range(4))
+    _, results_doc = _docs(tmp_path)
+    assert report_main([str(results), "--results-doc", str(results_doc)]) == 0
+    page = results_doc.read_text()
+    table = page[page.index("| mira (ours) against |") :].split("\n\n")[0].splitlines()
+    assert table[0].startswith("| mira (ours) against | block-insertion | block-insertion Chall")
+    rows = {line.split(" | ")[0].removeprefix("| "): line.split(" | ")[1] for line in table[2:]}
+    # 10 seeds mira only, none Transporter-SE(2) only: p = 2 / 2**10
+    assert rows["Transporter-SE(2)"] == "10 / 0, p 0.002"
+    # Form2Fit: 9 seeds mira only (3-11), 2 Form2Fit only (15, 16): p = 2 * 67 / 2**11
+    assert rows["Form2Fit"] == "9 / 2, p 0.065"
+    assert rows["Transporter-SE(3)"] == "" and rows["GT-State MLP"] == ""
+    # hanging-disks: Form2Fit's cell has no mira cell to pair with
+    assert table[[line.split(" | ")[0] for line in table].index("| Form2Fit")].endswith(
+        "|  |  |  |  |  |  |"
     )

@@ -1,5 +1,5 @@
-"""`nerf-transporter report results/ [--csv] [--plot PNG] [--readme README.md]`: the results table
-(docs/conventions.md, "Evaluation protocol").
+"""`nerf-transporter report results/ [--csv] [--plot PNG] [--readme README.md] [--results-doc
+docs/results.md]`: the results table (docs/conventions.md, "Evaluation protocol").
 
 Reads the records under the given directories (`evaluation/cells.py`, which checks each): the
 cells `run-cell` writes (`<root>/<column>/<row>.json`), or, in a folder without cells (`logs/`),
@@ -17,9 +17,11 @@ kept under `<root>/archive/world-<fingerprint>/`, follow in a table of their own
 "Archived world <fingerprint>", never in this world's table.
 `--plot` draws the table as bars with their intervals and the paper's values as markers;
 `--validation-plots DIR` draws each column's validation success against training steps (the budget
-study, `docs/budget.md`) and `--validation-tables` prints them; `--readme` rewrites the README's
-results block (between `README_START` and `README_END`), with the run-cell command of each
-measured cell and the machine each cell's fit ran on.
+study, `docs/budget.md`) and `--validation-tables` prints them. `--readme` rewrites the README's
+results block (between `README_START` and `README_END`): the table with a pointer to the results
+page. `--results-doc` rewrites that page's block (between `RESULTS_DOC_START` and
+`RESULTS_DOC_END`): the table, the machine each cell's fit ran on, the paired comparisons of mira
+with each other row, the run-cell command of each measured cell, and where the archived worlds lie.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from nerf_transporter.atomic import write_text
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.drawing import bar_chart, line_chart
 from nerf_transporter.evaluation.cells import (
@@ -45,6 +48,7 @@ from nerf_transporter.evaluation.cells import (
     row_key,
     trained_setting,
 )
+from nerf_transporter.evaluation.metrics import paired_comparison
 from nerf_transporter.evaluation.paper import PAPER_SUCCESS
 from nerf_transporter.sim.fingerprint import world_fingerprint
 from nerf_transporter.sim.tasks import SETTINGS
@@ -77,6 +81,13 @@ PAPER_NOTE = (
 )
 README_START = "<!-- results table: written by `nerf-transporter report results/ --readme README.md`; do not edit -->"
 README_END = "<!-- end of the results table -->"
+RESULTS_DOC_START = (
+    "<!-- results: written by `nerf-transporter report results/ --results-doc docs/results.md`; "
+    "do not edit -->"
+)
+RESULTS_DOC_END = "<!-- end of the results -->"
+# the results page, from the README; the README, from the results page
+RESULTS_DOC_LINK, README_LINK = "docs/results.md", "../README.md"
 
 
 def seed_outcomes(record: dict) -> dict[int, bool]:
@@ -145,17 +156,25 @@ def newest_records(records: list[dict]) -> dict[tuple[str, str, str, str], dict]
     return newest
 
 
+def table_columns(newest: dict[tuple[str, str, str, str], dict]) -> list[Column]:
+    """The table's columns: `COLUMNS`, then each other column that holds a record, in order."""
+    extra = {key[1:] for key in newest} - set(COLUMNS)
+    return list(COLUMNS) + sorted(extra, key=_column_order)
+
+
+def table_rows(newest: dict[tuple[str, str, str, str], dict]) -> list[str]:
+    """The table's rows: `METHODS`, then each other row that holds a record, by name."""
+    return list(METHODS) + sorted({key[0] for key in newest} - set(METHODS))
+
+
 def results_table(records: list[dict]) -> tuple[list[str], list[list[str]]]:
     """(header, rows): the newest record per (row, column) in its cell (`table_cell`); below each
     of our rows the paper's values of that method (`paper_value`; empty where it has none)."""
     newest = newest_records(records)
-    extra = {key[1:] for key in newest} - set(COLUMNS)
-    columns = list(COLUMNS) + sorted(extra, key=_column_order)
-    found = {key[0] for key in newest}
-    methods = list(METHODS) + sorted(found - set(METHODS))
+    columns = table_columns(newest)
     header = ["method"] + [column_name(*column) for column in columns]
     rows = []
-    for method in methods:
+    for method in table_rows(newest):
         cells = [
             table_cell(newest[(method, *column)]) if (method, *column) in newest else ""
             for column in columns
@@ -350,6 +369,36 @@ def _machine_lines(records: list[dict]) -> list[str]:
     return ["", where, "", *(f"- {line}" for line in machines)]
 
 
+def _paired_text(ours: dict | None, other: dict | None) -> str:
+    """'mira only / the other only, p <exact McNemar p>' of two cells on their common test seeds;
+    empty where either is missing, holds no episodes, or they share no seed."""
+    if any(record is None or "episode_results" not in record for record in (ours, other)):
+        return ""
+    first, second = seed_outcomes(ours), seed_outcomes(other)
+    if not set(first) & set(second):
+        return ""
+    paired = paired_comparison(first, second)
+    return f"{paired['first_only']} / {paired['second_only']}, p {paired['p_value']:.2g}"
+
+
+def paired_comparisons(records: list[dict]) -> tuple[list[str], list[list[str]]]:
+    """(header, rows): mira (ours) against each other row, column by column, paired on their
+    common test seeds (`_paired_text`), as `compare-cells` pairs two cells."""
+    newest = newest_records(records)
+    columns = table_columns(newest)
+    header = [f"{METHODS['mira']} against"] + [column_name(*column) for column in columns]
+    rows = [
+        [METHODS.get(row, row)]
+        + [
+            _paired_text(newest.get(("mira", *column)), newest.get((row, *column)))
+            for column in columns
+        ]
+        for row in table_rows(newest)
+        if row != "mira"
+    ]
+    return header, rows
+
+
 def archive_title(archive: Archive) -> str:
     """The heading line of an archived world's table in the report's output."""
     return (
@@ -358,14 +407,11 @@ def archive_title(archive: Archive) -> str:
     )
 
 
-def readme_block(records: list[dict], archives: Sequence[Archive] = ()) -> str:
-    """The README's results block (without its markers): this world's table, with its world, how
-    many cells are measured, where they were fitted, the plot and the run-cell commands; then each
-    archived world's table under its own heading."""
+def _measured_line(records: list[dict]) -> str:
+    """The line that opens both results blocks: how many cells are measured, in which world, and
+    the columns beyond the eight."""
     count, total = measured_cells(records), len(METHODS) * len(COLUMNS)
-    fingerprint = world_fingerprint()
-    world = f"this checkout's world `{fingerprint}` (its fingerprint, `sim/fingerprint.py`)"
-    header, rows = results_table(records)
+    world = f"this checkout's world `{world_fingerprint()}` (its fingerprint, `sim/fingerprint.py`)"
     beyond = "".join(
         f" Beyond the {len(COLUMNS)} columns: {column_name(*column)}, {cells} of "
         f"{len(METHODS)} cells."
@@ -377,55 +423,83 @@ def readme_block(records: list[dict], archives: Sequence[Archive] = ()) -> str:
         else f"no cell has been measured yet in {world}: `results/` holds none of the {total}, "
         "the table shows the paper's values only."
     )
-    lines = [f"Full protocol (`nerf-transporter run-cell`, see below): {measured}{beyond}"]
-    lines += [
-        "",
-        markdown(header, rows).rstrip("\n"),
-        "",
+    return f"Full protocol (`nerf-transporter run-cell`): {measured}{beyond}"
+
+
+def _legend(citation: str) -> str:
+    """How to read the table's columns, cells and paper rows; `citation` links the paper."""
+    return (
         "Columns: each task trained on Normal demonstrations and tested on Normal and on "
         "Challenging test seeds (the same checkpoint, chosen on Normal validation seeds); a "
         "column trained and tested Challenging (`--setting challenging`) follows where its cells "
         "exist. Cells: success (the anchor's reward) / strict success (the 6-DoF check; - where "
         'the cell lacks it), each rate% (test episodes that ran, 95% Wilson interval). "paper" '
-        "rows: Table 1 of the write-up this project started from (see [Citation](#citation); "
+        f"rows: Table 1 of the write-up this project started from (see [Citation]({citation}); "
         "success %, 10 demonstrations, its number of test episodes not stated; "
-        f"`evaluation/paper.py`). {PAPER_NOTE}",
-    ]
-    lines += _machine_lines(records)
-    if count:
+        "`evaluation/paper.py`)."
+    )
+
+
+def readme_block(records: list[dict]) -> str:
+    """The README's results block (without its markers): this world's table with its world, how
+    many cells are measured, the plot, and where the rest lies (`results_doc_block`)."""
+    lines = [_measured_line(records), "", markdown(*results_table(records)).rstrip("\n")]
+    lines += ["", _legend("#citation")]
+    if measured_cells(records):
         lines += ["", "![results table as bars](results/table1.png)"]
+    lines += [
+        "",
+        "Where each cell was fitted, the paired comparisons, the command that measures each cell "
+        f"again, and any archived world's cells: [{RESULTS_DOC_LINK}]({RESULTS_DOC_LINK}).",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def results_doc_block(records: list[dict], archives: Sequence[Archive] = ()) -> str:
+    """The results page's block (without its markers): this world's table with its world, how
+    many cells are measured, how to read it, where they were fitted, the plot, the paired
+    comparisons and the run-cell commands; then where each archived world's cells lie."""
+    lines = [_measured_line(records), "", markdown(*results_table(records)).rstrip("\n")]
+    lines += ["", f"{_legend(README_LINK + '#citation')} {PAPER_NOTE}", *_machine_lines(records)]
+    if measured_cells(records):
+        lines += ["", "![results table as bars](../results/table1.png)"]
+    header, rows = paired_comparisons(records)
+    if any(any(row[1:]) for row in rows):
+        lines += [
+            "",
+            "Paired comparisons: mira (ours) against each other row of a column on their common "
+            "test seeds (`nerf-transporter compare-cells`): the seeds only mira succeeded on / "
+            "only the other row did, and the exact McNemar p (two rates of 100 episodes differ by "
+            "chance by up to ~13 points; on the same seeds only these seeds decide).",
+            "",
+            markdown(header, rows).rstrip("\n"),
+        ]
     commands = cell_commands(records)
     if commands:
         lines += [
             "",
-            "Each measured cell is remeasured from scratch by (its protocol, as recorded):",
+            "Each measured cell is measured again from scratch by (its protocol, as recorded):",
         ]
         lines += ["", *(f"    {command} --force" for command in commands)]
     for archive in archives:
-        header, rows = results_table(archive.cells)
         lines += [
             "",
-            f"#### Archived world `{archive.world}`",
-            "",
-            f"{len(newest_records(archive.cells))} cells measured in an earlier world, kept "
-            f"in `results/{ARCHIVE}/world-{archive.world}/`: its seeds built other scenes than "
-            "this world's, so these numbers are not comparable with the table above.",
-            "",
-            markdown(header, rows).rstrip("\n"),
-            *_machine_lines(archive.cells),
+            f"Archived world `{archive.world}`: {len(newest_records(archive.cells))} cells, kept "
+            f"in `results/{ARCHIVE}/world-{archive.world}/`; its seeds built other scenes than "
+            "this world's, so these numbers are not comparable with the table above. "
+            "`nerf-transporter report results/` prints its table after this world's.",
         ]
     return "\n".join(lines) + "\n"
 
 
-def replace_readme_block(text: str, block: str) -> str:
-    """`text` with the part between README_START and README_END replaced by `block`."""
-    start, end = text.find(README_START), text.find(README_END)
+def replace_block(text: str, block: str, start_marker: str, end_marker: str) -> str:
+    """`text` with the part between the two markers replaced by `block`."""
+    start, end = text.find(start_marker), text.find(end_marker)
     if start < 0 or end < start:
         raise ValueError(
-            f"the README has no results block: put the lines {README_START} and {README_END} "
-            "where the table goes"
+            f"no results block: put the lines {start_marker} and {end_marker} where it goes"
         )
-    return text[: start + len(README_START)] + "\n" + block + text[end:]
+    return text[: start + len(start_marker)] + "\n" + block + text[end:]
 
 
 def markdown(header: list[str], rows: list[list[str]]) -> str:
@@ -448,6 +522,32 @@ def _write_png(path: Path, image: np.ndarray) -> bool:
         return True
     print(f"nerf-transporter report: could not write {path}", file=sys.stderr)
     return False
+
+
+def _rewritten(path: Path, block: str, start_marker: str, end_marker: str) -> str:
+    """The text of `path` with its block between the two markers replaced by `block`; a
+    ValueError naming the file where it lacks them."""
+    try:
+        return replace_block(path.read_text(), block, start_marker, end_marker)
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from None
+
+
+def _rewrites(
+    args: argparse.Namespace, records: list[dict], archives: Sequence[Archive]
+) -> dict[Path, str]:
+    """path -> its new text, for the README (`--readme`) and the results page (`--results-doc`)
+    asked for; both are read and checked for their markers before either is written."""
+    rewrites = {}
+    if args.readme:
+        block = readme_block(records)
+        rewrites[args.readme] = _rewritten(args.readme, block, README_START, README_END)
+    if args.results_doc:
+        block = results_doc_block(records, archives)
+        rewrites[args.results_doc] = _rewritten(
+            args.results_doc, block, RESULTS_DOC_START, RESULTS_DOC_END
+        )
+    return rewrites
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -475,7 +575,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--readme",
         type=Path,
-        help="also rewrite the results block of this README (between its two markers)",
+        help="also rewrite the results block of this README (between its two markers): the table",
+    )
+    parser.add_argument(
+        "--results-doc",
+        type=Path,
+        help="also rewrite the results block of this page (docs/results.md, between its two "
+        "markers): the table, the machines, the paired comparisons, every cell's run-cell command",
     )
     parser.add_argument(
         "--validation-tables",
@@ -486,10 +592,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         found = find_records([Path(root) for root in args.roots])
         records = found.records
-        if args.readme:
-            text = args.readme.read_text()
-            block = readme_block(records, found.archives)
-            args.readme.write_text(replace_readme_block(text, block))
+        rewrites = _rewrites(args, records, found.archives)
+        for path, text in rewrites.items():
+            write_text(path, text)
     except (OSError, ValueError) as error:
         print(f"nerf-transporter report: {error}", file=sys.stderr)
         return 2

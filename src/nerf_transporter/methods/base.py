@@ -24,7 +24,7 @@ from nerf_transporter.models.transport import placement_cross_entropy, unravel_a
 Batch = dict[str, torch.Tensor]
 Action = dict[str, g.Pose]
 # FCN width of the image methods: at 16 a full-size mira training step takes 0.5 s with 2 threads on
-# the 2-core development CPU (README, "Speed"); Transporter networks use 64 (set
+# the 2-core development CPU (docs/measurements.md, "Speed"); Transporter networks use 64 (set
 # model.init_args.width on a GPU).
 DEFAULT_WIDTH = 16
 FULL_PRECISION = ("32-true", "32")  # trainer.precision values without autocast

@@ -1,10 +1,10 @@
 """CUDA graphs for a network's training passes: one launch for its forward, one for its backward.
 
 At batch 1 a training step launches thousands of small kernels and a GPU waits on those launches,
-not on arithmetic (README, "Speed on one GPU"). `graph_training_passes(net)` makes the network
-capture its forward and backward passes (`torch.cuda.make_graphed_callables`) the first time it
-trains on CUDA, and replay them from then on, for that input's shape. Every other call runs the
-network as before: inference (no grad, or eval mode), the CPU, autocast, another input shape, and a
+not on arithmetic (docs/measurements.md, "Speed on one GPU"). `graph_training_passes(net)` makes
+the network capture its forward and backward passes (`torch.cuda.make_graphed_callables`) the first
+time it trains on CUDA, and replay them from then on, for that input's shape. Every other call runs
+the network as before: inference (no grad, or eval mode), the CPU, autocast, another input shape, and a
 second call before the first one's backward (a replay would overwrite the first call's saved
 activations). The replays compute what the eager passes compute (tests/models/test_graphs.py,
 which needs CUDA).
