@@ -13,9 +13,13 @@ from nerf_transporter.cli import lightning_main
 from nerf_transporter.data.augment import sample_transform
 from nerf_transporter.data.datamodule import Demo, DemoDataset
 from nerf_transporter.data.labels import mira_labels, to_view_frames
+from nerf_transporter.evaluation.callback import round_record_path, round_view_search
+from nerf_transporter.evaluation.failures import view_search_by_outcome
+from nerf_transporter.evaluation.report import main as report_main
 from nerf_transporter.evaluation.view_search import summary, view_search_record
 from nerf_transporter.methods import mira as mira_module
 from nerf_transporter.methods.mira import PlaceSearch, view_scores
+from tests.evaluation.test_report import write_cell
 from tests.helpers.synthetic import PIXEL_SIZE, SIZE
 from tests.methods.test_methods import make_method
 from tests.test_cli import closed_loop_test_config, fit_two_steps
@@ -201,3 +205,64 @@ def test_a_test_under_the_configs_view_choice_records_the_view_search(tmp_path, 
         assert (search["true_view_rank"] == 0) == (search["view_steps"] == 0)
         assert len(search["true_view"]) == len(search["chosen_view"]) == 2
     assert record["view_search"] == summary([e["view_search"] for e in episodes])
+
+
+def test_a_kept_validation_round_gives_its_view_search_figures(tmp_path):
+    record = {"step": 500, "figures": {"eval/success_rate": 0.5, "eval/view_top1": 0.25}}
+    record["figures"] |= {"eval/view_within_one_step": 0.75, "eval/true_view_rank_median": 2.0}
+    path = round_record_path(tmp_path, 500)
+    path.parent.mkdir()
+    path.write_text(json.dumps(record))
+    assert round_view_search(tmp_path, 500) == {
+        "view_top1": 0.25,
+        "view_within_one_step": 0.75,
+        "true_view_rank_median": 2.0,
+    }
+    assert round_view_search(tmp_path, 1000) == {}  # no round kept: no figures
+
+
+def test_validation_tables_show_the_view_search_of_the_rounds_and_the_test(tmp_path, capsys):
+    results = tmp_path / "results"
+    rounds = [(500, 0.2), (1000, 1.0)]
+    write_cell(results, "mira", "hanging-disks", "normal", 40, 100, "nerf", rounds)
+    path = results / "hanging-disks" / "mira.json"
+    record = json.loads(path.read_text())
+    record["validation"][1] |= {"view_top1": 0.5, "view_within_one_step": 0.9}
+    record["validation"][1] |= {"true_view_rank_median": 1.0}
+    record["view_search"] = {"view_top1": 0.4, "view_within_one_step": 0.8}
+    record["view_search"] |= {"true_view_rank_median": 2.0, "view_search_episodes": 100.0}
+    path.write_text(json.dumps(record))
+    assert report_main([str(results), "--validation-tables"]) == 0
+    view_table = capsys.readouterr().out.split("\n\n")[-1]
+    assert view_table == (
+        "| hanging-disks: view search | step 500 | step 1000 | test |\n"
+        "| --- | --- | --- | --- |\n"
+        "| mira (ours) | - | true view 50%, within one step 90%, median rank 1 "
+        "| true view 40%, within one step 80%, median rank 2 |\n"
+    )
+
+
+def test_failures_split_the_view_search_by_outcome():
+    def episode(success, steps, rank, pixels):
+        search = {"view_steps": steps, "true_view_rank": rank, "true_view_pixel_error": pixels}
+        return {"success": success, "error": None, "view_search": search}
+
+    record = {
+        "episode_results": [
+            episode(True, 0, 0, 2.0),
+            episode(True, 1, 1, 4.0),
+            episode(False, 3, 12, 30.0),
+            {"success": False, "error": "imagery", "view_search": None},
+        ]
+    }
+    outcomes = view_search_by_outcome(record)
+    assert outcomes["successes"] == {
+        "view_top1": 0.5,
+        "view_within_one_step": 1.0,
+        "true_view_rank_median": 0.5,
+        "view_search_episodes": 2.0,
+        "median_true_view_pixel_error": 3.0,
+    }
+    assert outcomes["failures"]["view_top1"] == 0.0
+    assert outcomes["failures"]["median_true_view_pixel_error"] == 30.0
+    assert view_search_by_outcome({"episode_results": [{"success": True, "error": None}]}) is None

@@ -74,6 +74,7 @@ from nerf_transporter.cli import (
 )
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.device_info import describe_device
+from nerf_transporter.evaluation.callback import round_view_search
 from nerf_transporter.evaluation.cells import (
     CellFileError,
     column_folder,
@@ -654,6 +655,8 @@ def _test(
         **{f"strict_{key}": record.get(f"strict_{key}") for key in ("successes", "success_rate")},
         **{f"strict_{key}": record.get(f"strict_{key}") for key in ("ci_low", "ci_high")},
         "failures": record["failures"],
+        # mira: where the view search placed against the true view (`evaluation.view_search`)
+        **({"view_search": record["view_search"]} if record.get("view_search") else {}),
         "test_seeds": [result["seed"] for result in record["episode_results"]],
         "checkpoint": {
             "path": chosen["checkpoint"],
@@ -663,7 +666,9 @@ def _test(
             "validation_episodes": chosen["episodes"],
         },
         "validation": [
-            {"step": r["global_step"], "success_rate": r["success_rate"]} for r in validation
+            {"step": r["global_step"], "success_rate": r["success_rate"]}
+            | round_view_search(run_dir, r["global_step"])
+            for r in validation
         ],
         "steps": protocol["steps"],
         "batch_size": protocol["batch_size"],

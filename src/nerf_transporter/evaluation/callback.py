@@ -15,6 +15,9 @@ error). The first `video_episodes` of each round are recorded as mp4s in the run
 same `every_n_train_steps` keeps the checkpoints with the best validation success (the Transporter
 authors' protocol). Under DDP the seeds are shared out among the processes and the counts summed.
 
+Each round's figures and episode records are kept in the run folder as `validation/step<N>.json`
+(`round_record`), where `run-cell` reads the view-search figures of its rounds.
+
 The episodes run in `eval_workers` worker processes (default: the cores available to this process,
 its share under DDP), each with its own simulator and copy of the model, with the results of a serial
 run (`evaluation.workers`).
@@ -26,6 +29,7 @@ which ranks below every real one, so checkpoint selection ignores that round.
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -38,6 +42,7 @@ from tensorboard.compat.proto.summary_pb2 import Summary
 from torch.utils.tensorboard.summary import hparams as hparams_summary
 from torchmetrics.aggregation import SumMetric
 
+from nerf_transporter.atomic import write_json
 from nerf_transporter.drawing import captioned
 from nerf_transporter.evaluation.metrics import SuccessRate, wilson_interval
 from nerf_transporter.evaluation.report import cell
@@ -48,8 +53,8 @@ from nerf_transporter.evaluation.rollout import (
     Evaluator,
 )
 from nerf_transporter.evaluation.video import draw_action, gif_bytes
+from nerf_transporter.evaluation.view_search import VIEW_SEARCH_FIGURES, view_search_text
 from nerf_transporter.evaluation.view_search import summary as view_search_summary
-from nerf_transporter.evaluation.view_search import view_search_text
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.splits import split_seed
 
@@ -62,6 +67,28 @@ OUTCOME_COLOURS = {
     "failure": np.array([255, 0, 255], dtype=np.uint8),  # magenta
     "error": np.array([110, 110, 110], dtype=np.uint8),  # grey
 }
+
+
+def round_record_path(log_dir: str | Path, step: int) -> Path:
+    """Where a validation round's figures and episode records are kept: the run's
+    `validation/step<N>.json`."""
+    return Path(log_dir, "validation", f"step{step:06d}.json")
+
+
+def round_record(log_dir: str | Path, step: int) -> dict | None:
+    """The validation round of `step` kept in a run folder, or None (a fit without closed-loop
+    validation, or one before the rounds were kept)."""
+    path = round_record_path(log_dir, step)
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def round_view_search(log_dir: str | Path, step: int) -> dict[str, float]:
+    """The view-search figures (`view_search.VIEW_SEARCH_FIGURES`) of the validation round of
+    `step` kept in a run folder; empty where it holds none."""
+    figures = (round_record(log_dir, step) or {}).get("figures", {})
+    return {
+        name: figures[f"eval/{name}"] for name in VIEW_SEARCH_FIGURES if f"eval/{name}" in figures
+    }
 
 
 def rollout_column(result: EpisodeResult, border: int = 4) -> np.ndarray:
@@ -212,6 +239,15 @@ class SuccessRateCallback(Callback):
             )
             + "".join(f"\n  seed {line}" for line in misses)
         )
+        if trainer.is_global_zero and log_dir is not None:
+            write_json(
+                round_record_path(log_dir, trainer.global_step),
+                {
+                    "step": trainer.global_step,
+                    "figures": figures,
+                    "episode_results": [result.to_json() for result in results],
+                },
+            )
         video = next((result.video for result in results if result.video is not None), None)
         self._log(trainer, figures, rollout_strip(results), video)
         self._last_step = trainer.global_step

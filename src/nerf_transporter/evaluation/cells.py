@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from nerf_transporter.evaluation.metrics import wilson_interval
+from nerf_transporter.evaluation.view_search import VIEW_SEARCH_FIGURES
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
 TEST_RECORD_GLOB = "results*.json"  # lightning test's records, one per tested checkpoint
@@ -290,7 +291,8 @@ def _check_cell(record: dict[str, Any], where: str) -> None:
     _check_fields(record["checkpoint"], {"step": "int"}, {"path": "str"}, f"{where}: checkpoint")
     for index, entry in enumerate(record.get("validation", [])):
         rounds = {"step": "int", "success_rate": "number?"}
-        _check_fields(entry, rounds, {}, f"{where}: validation[{index}]")
+        view_search = dict.fromkeys(VIEW_SEARCH_FIGURES, "number")  # mira's rounds kept since
+        _check_fields(entry, rounds, view_search, f"{where}: validation[{index}]")
     machine = record.get("machine", {})
     _check_fields(machine, {}, {"fit": "list", "test": "dict"}, f"{where}: machine")
     for index, fit in enumerate(machine.get("fit", [])):

@@ -58,6 +58,8 @@ from nerf_transporter.evaluation.report import (
     seed_outcomes,
 )
 from nerf_transporter.evaluation.rollout import NOT_ACHIEVED
+from nerf_transporter.evaluation.view_search import summary as view_search_summary
+from nerf_transporter.evaluation.view_search import view_search_text
 from nerf_transporter.geometry import Pose
 from nerf_transporter.sim import make_env
 from nerf_transporter.sim.env import RavensEnv
@@ -236,7 +238,58 @@ def summary(record: Mapping[str, Any], diagnoses: list[dict[str, Any]]) -> dict[
             "failures": median_target_tilt(failures),
         },
         "success_by_target_tilt": success_by_target_tilt(diagnoses),
+        "view_search": view_search_by_outcome(record),
     }
+
+
+def view_search_by_outcome(record: Mapping[str, Any]) -> dict[str, Any] | None:
+    """mira: the view search's figures (`view_search.summary`) and the median pixel error in the
+    true view, over the successes and over the failures; None where no episode records it."""
+    ran = [e for e in record.get("episode_results", []) if e.get("error") is None]
+    if not any(e.get("view_search") for e in ran):
+        return None
+    by_outcome = {}
+    for name, wanted in (("successes", True), ("failures", False)):
+        searched = [e["view_search"] for e in ran if bool(e["success"]) == wanted]
+        errors = [
+            s["true_view_pixel_error"]
+            for s in searched
+            if s and s.get("true_view_pixel_error") is not None
+        ]
+        by_outcome[name] = (view_search_summary(searched) or {}) | {
+            "median_true_view_pixel_error": float(np.median(errors)) if errors else None
+        }
+    return by_outcome
+
+
+def view_search_table(summaries: list[dict[str, Any]]) -> tuple[list[str], list[list[str]]] | None:
+    """mira's cells: where the view search placed against the true view, successes / failures."""
+    searched = [entry for entry in summaries if entry.get("view_search")]
+    if not searched:
+        return None
+    header = [
+        "column",
+        "method",
+        "view search, successes",
+        "view search, failures",
+        "median pixel error in the true view, successes / failures",
+    ]
+    rows = []
+    for entry in searched:
+        outcomes = entry["view_search"]
+        pixels = [
+            outcomes[name]["median_true_view_pixel_error"] for name in ("successes", "failures")
+        ]
+        rows.append(
+            [
+                column_name(entry["task"], entry["setting"], entry["trained_setting"]),
+                _row_label(entry),
+                view_search_text(outcomes["successes"]),
+                view_search_text(outcomes["failures"]),
+                " / ".join("-" if value is None else f"{value:.1f}" for value in pixels),
+            ]
+        )
+    return header, rows
 
 
 def success_by_target_tilt(diagnoses: list[dict[str, Any]]) -> dict[str, list[int]]:
@@ -397,6 +450,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     summaries = [entry for entry, _ in analysed]
     tables = [summary_table(summaries), tilt_table(summaries)]
+    if views := view_search_table(summaries):
+        tables.append(views)
     if paired := paired_table(cells):
         tables.append(paired)
     sys.stdout.write("\n".join(markdown(*table) for table in tables))

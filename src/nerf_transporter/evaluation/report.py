@@ -50,6 +50,7 @@ from nerf_transporter.evaluation.cells import (
 )
 from nerf_transporter.evaluation.metrics import paired_comparison
 from nerf_transporter.evaluation.paper import PAPER_SUCCESS
+from nerf_transporter.evaluation.view_search import VIEW_SEARCH_FIGURES, view_search_text
 from nerf_transporter.sim.fingerprint import world_fingerprint
 from nerf_transporter.sim.tasks import SETTINGS
 
@@ -341,7 +342,28 @@ def validation_tables(records: list[dict]) -> str:
             machines = ", ".join(fit_machine_names(record))
             rows.append([METHODS.get(row, row), *rounds_text, cell(record), str(chosen), machines])
         tables.append(markdown(header + ["test", "checkpoint step", "fitted on"], rows))
+        searched = [(row, record) for row, record in cells if _view_rounds(record)]
+        if searched:  # mira: the view search of the same rounds, and of the test
+            view_rows = [
+                [
+                    METHODS.get(row, row),
+                    *(view_search_text(_view_rounds(record).get(step)) for step in steps),
+                    view_search_text(record.get("view_search")),
+                ]
+                for row, record in searched
+            ]
+            view_header = [f"{column_name(*column)}: view search", *header[1:], "test"]
+            tables.append(markdown(view_header, view_rows))
     return "\n".join(tables)
+
+
+def _view_rounds(record: dict) -> dict[int, dict]:
+    """step -> the view-search figures of a cell's validation rounds that hold them."""
+    return {
+        entry["step"]: entry
+        for entry in record.get("validation", [])
+        if all(name in entry for name in VIEW_SEARCH_FIGURES)
+    }
 
 
 def fit_machines(records: list[dict]) -> list[str]:
