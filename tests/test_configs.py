@@ -18,6 +18,7 @@ REPO = Path(__file__).resolve().parents[1]
 CONFIGS = REPO / "configs"
 SUCCESS = "nerf_transporter.evaluation.callback.SuccessRateCallback"
 CHECKPOINT = "lightning.pytorch.callbacks.ModelCheckpoint"
+OFFLINE = "nerf_transporter.evaluation.view_search.OfflineViewSearch"
 
 # config name -> (task, setting, max_steps of the full config)
 TASK_CONFIGS = {
@@ -110,7 +111,9 @@ def test_task_configs_resolve_to_the_values_of_8c67841(name, quick):
     expected |= QUICK if quick else {}
     assert {key: config[key] for key in expected} == expected
     every, episodes = (500, 5) if quick else (1000, 20)
-    (success, success_args), (checkpoint, checkpoint_args) = callbacks(config)
+    (success, success_args), (checkpoint, checkpoint_args), *probe = callbacks(config)
+    # the full configs measure mira's view search offline between rounds; the quick ones do not
+    assert probe == ([] if quick else [(OFFLINE, {"every_n_steps": 250, "demos": 10})])
     assert (success, success_args["every_n_steps"], success_args["episodes"]) == (
         SUCCESS,
         every,
@@ -264,3 +267,49 @@ def test_a_checkpoint_of_another_pixel_size_is_refused():
     same.load_state_dict(checkpoint["state_dict"])
     pairs = zip(same.state_dict().values(), trained.state_dict().values(), strict=True)
     assert all(torch.equal(a, b) for a, b in pairs)
+
+
+# configs/recipe/: MIRA's value of each knob (its code), the table's where a file leaves it
+MIRA_RECIPE = {
+    "data.init_args.augment_distribution": "gaussian",
+    "data.init_args.negative_transform": "own",
+    "data.init_args.n_negative_views": 1,
+    "data.init_args.negative_view_scale": None,
+    "data.init_args.colour_augment": False,
+    "model.init_args.view_choice": "view_softmax",
+    "model.init_args.width": 64,
+    "model.init_args.lr": 1e-4,
+}
+RECIPE_KNOBS = {
+    "se2_gaussian.yaml": (
+        "data.init_args.augment_distribution",
+        "data.init_args.negative_transform",
+    ),
+    "negatives_uniform.yaml": ("data.init_args.negative_view_scale",),
+    "no_colour_augment.yaml": ("data.init_args.colour_augment",),
+    "view_softmax.yaml": ("model.init_args.view_choice",),
+    "width64_lr1e-4.yaml": ("model.init_args.width",),  # the task configs' lr is MIRA's 1e-4
+}
+
+
+def test_mira_code_recipe_sets_every_knob_to_miras_value():
+    config, _ = resolve("hanging_disks.yaml", "data/colour_augment.yaml", "recipe/mira_code.yaml")
+    assert {key: config[key] for key in MIRA_RECIPE} == MIRA_RECIPE
+
+
+@pytest.mark.parametrize("knob", list(RECIPE_KNOBS))
+def test_each_recipe_knob_switches_alone(knob):
+    base, _ = resolve("hanging_disks.yaml", "data/colour_augment.yaml")
+    config, _ = resolve("hanging_disks.yaml", "data/colour_augment.yaml", f"recipe/{knob}")
+    changed = {key for key in MIRA_RECIPE if config[key] != base[key]}
+    assert changed == set(RECIPE_KNOBS[knob])
+    assert all(config[key] == MIRA_RECIPE[key] for key in changed)
+
+
+def test_the_shared_recipe_knobs_stack_on_transporter_se2():
+    config, cli = resolve(
+        "hanging_disks.yaml", "model/transporter_se2.yaml", "recipe/sampling.yaml"
+    )
+    assert type(cli.model).__name__ == "TransporterSE2"
+    shared = [key for key in MIRA_RECIPE if key.startswith("data.")]
+    assert {key: config[key] for key in shared} == {key: MIRA_RECIPE[key] for key in shared}

@@ -16,7 +16,7 @@ from nerf_transporter.data.labels import mira_labels, to_view_frames
 from nerf_transporter.evaluation.callback import round_record_path, round_view_search
 from nerf_transporter.evaluation.failures import view_search_by_outcome
 from nerf_transporter.evaluation.report import main as report_main
-from nerf_transporter.evaluation.view_search import summary, view_search_record
+from nerf_transporter.evaluation.view_search import offline_view_search, summary, view_search_record
 from nerf_transporter.methods import mira as mira_module
 from nerf_transporter.methods.mira import PlaceSearch, view_scores
 from tests.evaluation.test_report import write_cell
@@ -266,3 +266,45 @@ def test_failures_split_the_view_search_by_outcome():
     assert outcomes["failures"]["view_top1"] == 0.0
     assert outcomes["failures"]["median_true_view_pixel_error"] == 30.0
     assert view_search_by_outcome({"episode_results": [{"success": True, "error": None}]}) is None
+
+
+def test_the_offline_measure_ranks_the_true_view_and_the_label_in_it(monkeypatch):
+    """With transport logits that put the label first in its view and that view first, both ranks
+    are 0; with the label and its view scored below every other, both rank last."""
+    views = np.array([[0.0, 0.0], [0.0, math.pi / 12], [math.pi / 12, 0.0]])
+    shape = g.image_shape(PIXEL_SIZE)
+    upright = np.array([0.0, 0.0, 0.0, 1.0])
+    pick = (g.pixel_to_world(np.array([6, 3]), 0.02, PIXEL_SIZE), upright)
+    rotation = g.view_rotations(views)[1]
+    place_position = g.view_to_world(g.pixel_to_world(np.array([8, 4]), 0.02, PIXEL_SIZE), rotation)
+    truth = {"pick": pick, "place": (place_position, g.matrix_to_quat(rotation))}
+    rng = np.random.default_rng(0)
+    demo = Demo(
+        seed=1,
+        view_action=to_view_frames(truth, views),
+        pick_view=0,
+        colour=rng.integers(0, 256, (len(views), *shape, 3), dtype=np.uint8),
+        height=np.full((len(views), *shape), 0.02, dtype=np.float32),
+    )
+    labels = mira_labels(truth, views, PIXEL_SIZE, SIZE["n_rotations"])
+    assert labels.place_view == 1
+
+    def scores(label_logit):
+        def correlate(query, kernel_f, crop_size):
+            logits = torch.ones(1, len(views), SIZE["n_rotations"], *shape)
+            logits[0, 1] = 0.0
+            logits[0, 1, labels.rotation_bin][labels.place_pixel] = label_logit
+            return logits
+
+        return correlate
+
+    method = make_method("mira", view_chunk=len(views), view_choice="max_logit")
+    monkeypatch.setattr(mira_module, "correlate_spectrum", scores(9.0))
+    figures = offline_view_search(method, [demo], views, PIXEL_SIZE, SIZE["n_rotations"])
+    assert figures == {"true_view_rank_median": 0.0, "view_top1": 1.0, "label_rank_median": 0.0}
+    monkeypatch.setattr(mira_module, "correlate_spectrum", scores(-9.0))
+    figures = offline_view_search(method, [demo], views, PIXEL_SIZE, SIZE["n_rotations"])
+    placements = SIZE["n_rotations"] * shape[0] * shape[1]
+    assert figures["true_view_rank_median"] == 2.0 and figures["view_top1"] == 0.0
+    # every other placement of its view over the workspace scores higher
+    assert placements / 2 < figures["label_rank_median"] <= placements - 1

@@ -107,15 +107,24 @@ TEST_LOCK = ".run-cell-test-{setting}.lock"  # there: held by the one run-cell t
 LOGGER = "lightning.pytorch.loggers.TensorBoardLogger"
 # model arguments outside the protocol's "model" entry (the architecture): lr, pixel_size and
 # n_rotations are protocol keys of their own; view_chunk (memory), log_images_every_n_steps
-# (logging) and cuda_graphs (how the GPU runs the same arithmetic) change nothing that is learned
+# (logging) and cuda_graphs (how the GPU runs the same arithmetic) change nothing that is learned;
+# view_choice (mira's test-time rule) is a protocol key of its own
 MODEL_ARGS_NOT_ARCHITECTURE = (
     "lr",
     "pixel_size",
     "n_rotations",
     "view_chunk",
+    "view_choice",
     "log_images_every_n_steps",
     "cuda_graphs",
 )
+# settings that enter a protocol only where they differ from these values (all its cells were
+# measured under them before the setting existed), so that those cells keep their protocol ids
+PROTOCOL_KEYS_BY_DEFAULT = {
+    ("model", "view_choice"): "max_logit",
+    ("data", "augment_distribution"): "uniform",
+    ("data", "negative_transform"): "shared",
+}
 
 
 class CellError(ValueError):
@@ -263,6 +272,10 @@ def cell_protocol(config: dict[str, Any], method: str, input_kind: str) -> dict[
     if data.get("colour_augment"):
         # only when on, so that the protocol ids of cells measured before the option stay the same
         protocol["colour_augment"] = True
+    for (section, key), default in PROTOCOL_KEYS_BY_DEFAULT.items():
+        value = (model if section == "model" else data).get(key, default)
+        if value != default:
+            protocol[key] = value
     return protocol
 
 
