@@ -62,6 +62,10 @@ TOOLS: dict[str, tuple[str, str]] = {
         "nerf_transporter.evaluation.checkpoints:main",
         "closed-loop success of every checkpoint of a run, to pick the one to test",
     ),
+    "world": (
+        "nerf_transporter.sim.fingerprint:main",
+        "this package's world fingerprint, component by component (--json)",
+    ),
 }
 
 

@@ -187,7 +187,7 @@ def test_data_of_another_world_is_not_trained_on(fake_world, tmp_path, monkeypat
     module = make(tmp_path, generate_missing=False)
     with pytest.raises(ep.WorldMismatchError) as error:
         module.setup("fit")
-    assert "sim/tasks/block_insertion.py changed" in str(error.value)
+    assert "the physics and tasks (physics) changed" in str(error.value)
     assert str(error.value).endswith(
         "nerf-transporter generate --task block-insertion --setting normal --split train "
         f"--episodes 3 --imagery oracle --data-dir {tmp_path} --pixel-size 0.0125 --nerf-views 2 "

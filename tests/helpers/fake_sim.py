@@ -88,6 +88,6 @@ class FakeEnv:
 
 
 def changed_world(world: dict) -> dict:
-    """`world` with block_insertion.py changed."""
-    modules = {**world["modules"], "sim/tasks/block_insertion.py": "0" * 12}
-    return {**world, "fingerprint": "0" * 16, "modules": modules}
+    """`world` with its physics and tasks changed."""
+    components = {**world["components"], "physics": "0" * 16}
+    return {**world, "fingerprint": "0" * 16, "components": components}

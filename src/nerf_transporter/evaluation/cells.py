@@ -36,7 +36,7 @@ from typing import Any
 
 from nerf_transporter.evaluation.metrics import wilson_interval
 from nerf_transporter.evaluation.view_search import VIEW_SEARCH_FIGURES
-from nerf_transporter.sim.fingerprint import world_fingerprint
+from nerf_transporter.sim.fingerprint import components_read, same_world, world_fingerprint
 
 TEST_RECORD_GLOB = "results*.json"  # lightning test's records, one per tested checkpoint
 ARCHIVE = "archive"  # <results>/archive/world-<fingerprint>/: the cells of an earlier world
@@ -341,9 +341,10 @@ def _check_fit(record: dict[str, Any], where: str) -> None:
 
 
 def _check_world(record: dict[str, Any], where: str, world: str, archived: bool) -> None:
-    """CellFileError naming both fingerprints where `record` was measured in another world."""
+    """CellFileError naming both fingerprints where `record` was measured in another world (in a
+    component it read: `sim/fingerprint.py`)."""
     measured = record["world"]
-    if measured == world:
+    if same_world(measured, world, components_read(record.get("imagery"))):
         return
     git = record.get("git")
     commit = git.get("commit") if isinstance(git, dict) else None

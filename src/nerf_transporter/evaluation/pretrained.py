@@ -46,7 +46,7 @@ from nerf_transporter.evaluation.rollout import (
 from nerf_transporter.evaluation.testing import checkpoint_step, results_record
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.pretrained import PRETRAINED_DIR
-from nerf_transporter.sim.fingerprint import world_fingerprint
+from nerf_transporter.sim.fingerprint import components_read, same_world, world_fingerprint
 from nerf_transporter.splits import split_seed
 
 MANIFEST = "manifest.json"
@@ -104,6 +104,11 @@ def policy_world(entry: dict[str, Any]) -> str | None:
     return (entry.get("test") or {}).get("world")
 
 
+def trained_in(entry: dict[str, Any], world: str) -> bool:
+    """Whether the shipped policy of `entry` was trained in `world` (in what it read of it)."""
+    return same_world(policy_world(entry), world, components_read(entry.get("imagery")))
+
+
 def foreign_world_text(entry: dict[str, Any], world: str) -> str:
     """Why the shipped policy of `entry` is not run in `world`, and what to do instead."""
     name = f"{entry['task']}/{entry['method']} ({entry['file']})"
@@ -123,7 +128,7 @@ def check_world(entry: dict[str, Any], world: str | None = None) -> None:
     """Raise a ForeignWorldError naming the policy where it was trained in another world than
     `world` (default: this package's)."""
     world = world_fingerprint() if world is None else world
-    if policy_world(entry) != world:
+    if not trained_in(entry, world):
         raise ForeignWorldError(foreign_world_text(entry, world))
 
 
@@ -258,7 +263,7 @@ def shipped_table(entries: list[dict[str, Any]]) -> str:
 def foreign_world_note(entries: list[dict[str, Any]], world: str) -> str | None:
     """The shipped policies trained in another world than `world`, one line each, under a
     headline; None where all were trained in it."""
-    foreign = [entry for entry in entries if policy_world(entry) != world]
+    foreign = [entry for entry in entries if not trained_in(entry, world)]
     if not foreign:
         return None
     lines = [
