@@ -18,7 +18,7 @@ REPO = Path(__file__).resolve().parents[1]
 CONFIGS = REPO / "configs"
 SUCCESS = "nerf_transporter.evaluation.callback.SuccessRateCallback"
 CHECKPOINT = "lightning.pytorch.callbacks.ModelCheckpoint"
-OFFLINE = "nerf_transporter.evaluation.view_search.OfflineViewSearch"
+OFFLINE = "nerf_transporter.evaluation.view_probe.OfflineViewSearch"
 
 # config name -> (task, setting, max_steps of the full config)
 TASK_CONFIGS = {

@@ -17,9 +17,8 @@ evaluation records `view_search`:
 `summary(records)` pools an evaluation's records into the figures logged as
 `eval/view_top1`, `eval/view_within_one_step` and `eval/true_view_rank_median`.
 
-`OfflineViewSearch`, a training callback, measures the search on validation demonstrations
-without a simulator (`offline_view_search`): the true view's rank and the place label's rank in it,
-logged every N steps between closed-loop rounds.
+`evaluation.view_probe` measures the same search on validation demonstrations, without a
+simulator, during training.
 """
 
 from __future__ import annotations
@@ -27,14 +26,9 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import torch
-from lightning.pytorch.callbacks import Callback
 
 from nerf_transporter import geometry as g
-from nerf_transporter.data.generate import generate_dataset
 from nerf_transporter.data.labels import labels_from_view_action, to_view_frames
-from nerf_transporter.data.preprocess import network_input
-from nerf_transporter.methods.mira import PlaceSearch, view_scores
 
 VIEW_SEARCH_FIGURES = ("view_top1", "view_within_one_step", "true_view_rank_median")
 
@@ -112,81 +106,3 @@ def view_search_text(figures: dict[str, float] | None) -> str:
         f"true view {figures['view_top1']:.0%}, within one step "
         f"{figures['view_within_one_step']:.0%}, median rank {figures['true_view_rank_median']:g}"
     )
-
-
-def offline_view_search(
-    method: Any, demos: list[Any], views: np.ndarray, pixel_size: float, n_rotations: int
-) -> dict[str, float]:
-    """The view search on demonstrations, without a simulator: for each demo's own pick label,
-    the true view's rank among all views by the search's score (`true_view_rank_median`,
-    `view_top1`) and the rank of the place label's logit among all placements of the true view
-    (`label_rank_median`, 0 = the argmax). Medians over the demos."""
-    true_ranks, label_ranks = [], []
-    for demo in demos:
-        labels = labels_from_view_action(demo.view_action, pixel_size, n_rotations)
-        images = network_input(demo.colour, demo.height)
-        scores = []
-        for start, logits in method.place_logits(images, demo.height, views, labels.pick_pixel):
-            scores.append(view_scores(logits, method.view_choice).cpu())
-            inside = labels.place_view - start
-            if 0 <= inside < len(logits):
-                true_logits = logits[inside]
-                label = true_logits[labels.rotation_bin][labels.place_pixel]
-                label_ranks.append(int((true_logits > label).sum()))
-        search = PlaceSearch(
-            labels.pick_pixel, torch.cat(scores).double().numpy(), np.zeros((len(views), 3))
-        )
-        true_ranks.append(search.view_rank(labels.place_view))
-    return {
-        "true_view_rank_median": float(np.median(true_ranks)),
-        "view_top1": float(np.mean(np.array(true_ranks) == 0)),
-        "label_rank_median": float(np.median(label_ranks)),
-    }
-
-
-class OfflineViewSearch(Callback):
-    """Logs `offline/true_view_rank_median`, `offline/view_top1` and `offline/label_rank_median`
-    (`offline_view_search`) on the first `demos` validation demonstrations every `every_n_steps`
-    training steps: learning followed between closed-loop rounds, no simulator needed. Only for
-    methods that search views (`mira`); the demonstrations are generated where missing, as
-    `lightning fit` generates its training data. Evaluation leaves the training run unchanged
-    (`torch.random.fork_rng`, no gradients, the training mode restored)."""
-
-    def __init__(self, every_n_steps: int = 250, demos: int = 10) -> None:
-        if every_n_steps < 1:
-            raise ValueError(f"every_n_steps must be >= 1, got {every_n_steps}")
-        if demos < 1:
-            raise ValueError(f"demos must be >= 1, got {demos}")
-        self.every_n_steps, self.demos = every_n_steps, demos
-        self._demos: list[Any] | None = None
-
-    def on_fit_start(self, trainer: Any, pl_module: Any) -> None:
-        if not hasattr(pl_module, "place_logits") or not trainer.is_global_zero:
-            return
-        datamodule = trainer.datamodule
-        if datamodule.generate_missing:
-            config = datamodule.generation_config("validation")
-            generate_dataset(config, self.demos, datamodule.data_dir)
-        self._demos = datamodule.load_split("validation", self.demos, pl_module.input_kind)
-
-    def on_train_batch_end(
-        self, trainer: Any, pl_module: Any, outputs: object, batch: object, batch_idx: int
-    ) -> None:
-        step = trainer.global_step
-        if self._demos is None or step % self.every_n_steps != 0:
-            return
-        was_training = pl_module.training
-        pl_module.train(False)
-        try:
-            with torch.random.fork_rng(), torch.no_grad():
-                figures = offline_view_search(
-                    pl_module,
-                    self._demos,
-                    g.view_grid(trainer.datamodule.setting),
-                    pl_module.pixel_size,
-                    pl_module.n_rotations,
-                )
-        finally:
-            pl_module.train(was_training)
-        for logger in trainer.loggers:
-            logger.log_metrics({f"offline/{k}": v for k, v in figures.items()}, step=step)
