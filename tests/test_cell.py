@@ -1,6 +1,7 @@
 """`nerf-transporter run-cell`: protocol, skip, resume and the cell JSON (fit and test faked here;
 the slow test at the end runs a tiny cell for real)."""
 
+import functools
 import itertools
 import json
 import os
@@ -15,13 +16,15 @@ import yaml
 
 from nerf_transporter import cell as cell_module
 from nerf_transporter.atomic import write_new_json
-from nerf_transporter.cell import CellError, apply_budget, run_cell
+from nerf_transporter.cell import CellError, apply_budget, resolve_config, run_cell
+from nerf_transporter.cli import build_cli
 from nerf_transporter.data.datamodule import RavensDataModule
 from nerf_transporter.evaluation.cells import CellFileError, find_records, load_cell
 from nerf_transporter.evaluation.metrics import summarize
 from nerf_transporter.evaluation.report import results_table
 from nerf_transporter.evaluation.rollout import EvaluationSpec
 from nerf_transporter.geometry import view_grid
+from nerf_transporter.methods import METHODS
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
 REPO = Path(__file__).resolve().parents[1]
@@ -63,12 +66,15 @@ VALIDATION_SUCCESSES = {2: 1, 4: 3, 6: 3, 8: 2}
 
 class FakeLightning:
     """Stands in for `build_cli(["fit", ...])`: writes a checkpoint with its validation score every
-    `every_n_train_steps` up to `max_steps` (or raises KeyboardInterrupt after `interrupt_at`)."""
+    `every_n_train_steps` up to `max_steps` (or raises KeyboardInterrupt after `interrupt_at`).
+    `build_cli(..., run=False)`, which resolves a config, is the real one."""
 
     def __init__(self):
         self.calls, self.configs, self.interrupt_at = [], [], None
 
-    def __call__(self, args):
+    def __call__(self, args, **options):
+        if options.get("run") is False:
+            return build_cli(args, **options)
         config = yaml.safe_load(args[args.index("--config") + 1])  # the config's YAML text
         resume = args[args.index("--ckpt_path") + 1] if "--ckpt_path" in args else None
         self.calls.append(resume)
@@ -140,6 +146,37 @@ def run(**options):
     return run_cell(**(arguments | options))
 
 
+@functools.cache
+def _resolved(files: tuple[Path, ...]) -> str:
+    return json.dumps(resolve_config(list(files)))
+
+
+def real_config(files: list[Path]) -> dict:
+    """`resolve_config(files)`, the real one (each file list resolved once per session)."""
+    return json.loads(_resolved(tuple(files)))
+
+
+@pytest.mark.parametrize("method", list(METHODS))
+def test_each_method_is_fitted_as_its_own_class_from_the_real_configs(fakes, monkeypatch, method):
+    monkeypatch.setattr(cell_module, "resolve_config", real_config)
+    imagery = "oracle" if METHODS[method].input_kind == "imagery" else None
+    _, stored = run(method=method, imagery=imagery)
+    (fitted,) = fakes.configs
+    class_path = f"nerf_transporter.methods.{METHODS[method].__name__}"
+    assert fitted["model"]["class_path"] == stored["config"]["model"]["class_path"] == class_path
+    assert stored["method"] == method
+
+
+def test_an_overlay_replacing_the_model_is_refused_before_anything_runs(fakes, monkeypatch, capsys):
+    monkeypatch.setattr(cell_module, "resolve_config", real_config)
+    overlay = Path("other-model.yaml")
+    overlay.write_text("model:\n  class_path: nerf_transporter.methods.TransporterSE2\n")
+    assert cell_module.main(CELL_ARGV + ["--config", str(overlay)]) == 2
+    err = capsys.readouterr().err
+    assert "the config's model is nerf_transporter.methods.TransporterSE2, not mira's" in err
+    assert fakes.calls == [] and not Path("logs").exists()
+
+
 def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol(
     fakes, monkeypatch
 ):
@@ -202,11 +239,12 @@ def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol
     legacy = stored | {"protocol": {k: v for k, v in stored["protocol"].items() if k != "model"}}
     cell.write_text(json.dumps(legacy))  # written before the protocol had the model's entry
     assert run() == (cell, None)
-    wider = {**CONFIG, "model": {"init_args": {"lr": 1.0e-4, "width": 64}}}
+    wider = {**CONFIG, "model": CONFIG["model"] | {"init_args": {"lr": 1.0e-4, "width": 64}}}
     monkeypatch.setattr(cell_module, "resolve_config", lambda files: wider)
     with pytest.raises(CellError, match=r"model \{\} there, \{'width': 64\} here"):
         run()
-    graphed = {**CONFIG, "model": {"init_args": {"lr": 1.0e-4, "cuda_graphs": True}}}
+    graphed = CONFIG["model"] | {"init_args": {"lr": 1.0e-4, "cuda_graphs": True}}
+    graphed = {**CONFIG, "model": graphed}
     monkeypatch.setattr(cell_module, "resolve_config", lambda files: graphed)
     assert run() == (cell, None)  # CUDA graphs change how, not what: the same cell
     monkeypatch.setattr(cell_module, "resolve_config", lambda files: CONFIG)
@@ -387,7 +425,7 @@ def test_a_test_with_erred_episodes_writes_no_cell_and_is_tested_again(fakes, mo
     monkeypatch.setattr(
         cell_module, "evaluate_checkpoints", lambda *a, **k: fake_test(*a, errors=1, **k)
     )
-    argv = ["--task", "block-insertion", "--method", "transporter_se2", "--steps", "8"]
+    argv = ["--task", "block-insertion", "--method", "mira", "--steps", "8"]
     argv += ["--val-every", "2", "--episodes", "3", "--configs", str(REPO / "configs")]
     assert cell_module.main(argv) == 1
     assert "1 of 3 episodes erred" in capsys.readouterr().err
@@ -395,7 +433,7 @@ def test_a_test_with_erred_episodes_writes_no_cell_and_is_tested_again(fakes, mo
     monkeypatch.setattr(cell_module, "evaluate_checkpoints", fake_test)
     assert cell_module.main(argv) == 0
     assert len(fakes.calls) == 1  # the finished fit was kept, only the test ran again
-    assert Path("results/block-insertion/transporter_se2.json").is_file()
+    assert Path("results/block-insertion/mira.json").is_file()
 
 
 def test_a_cell_records_the_strict_check_beside_the_success_rate(fakes, monkeypatch):

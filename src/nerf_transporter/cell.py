@@ -46,6 +46,7 @@ import argparse
 import contextlib
 import copy
 import fcntl
+import importlib
 import json
 import logging
 import math
@@ -156,6 +157,22 @@ def build_cli_from_python(args: list[str], **options: Any) -> Any:
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=r".*LightningCLI's args parameter is intended")
         return build_cli(args, **options)
+
+
+def check_model(config: dict[str, Any], method: str) -> None:
+    """CellError where the resolved config's model is not `method`'s class (a `--config` overlay
+    setting `model.class_path` would fit another method under this one's name)."""
+    class_path = config["model"].get("class_path", "")
+    module, _, name = class_path.rpartition(".")
+    try:
+        model = getattr(importlib.import_module(module), name)  # imported by the config resolved
+    except (ImportError, AttributeError, ValueError):
+        model = None
+    if model is not METHODS[method]:
+        raise CellError(
+            f"the config's model is {class_path or 'missing'}, not {method}'s class "
+            f"{METHODS[method].__module__}.{METHODS[method].__name__}: --method names what is fitted"
+        )
 
 
 def _callback(config: dict[str, Any], name: str) -> dict[str, Any]:
@@ -555,6 +572,7 @@ def run_cell(
         val_episodes=val_episodes,
         eval_workers=eval_workers,
     )
+    check_model(config, method)
     fit_protocol = cell_protocol(config, method, input_kind)
     cross = test_setting != setting
     protocol = cross_protocol(fit_protocol, test_setting) if cross else fit_protocol
