@@ -379,6 +379,34 @@ def test_a_challenging_cell_resumes_an_unfinished_normal_fit_in_its_folder(fakes
     assert cell_module.main(argv) == 0 and len(fakes.calls) == 2  # measured: skipped
 
 
+def test_a_challenging_cell_tests_the_fit_its_normal_cell_names_not_a_later_refit(
+    fakes, monkeypatch, capsys
+):
+    calls = settings_tested(monkeypatch)
+    _, normal = run()
+    fakes.interrupt_at = 4
+    with pytest.raises(KeyboardInterrupt):
+        run(force=True)  # a refit, killed: the latest run folder, unfinished
+    fakes.interrupt_at = None
+    _, cross = run(test_setting="challenging")
+    assert len(fakes.calls) == 2  # the abandoned refit is neither trained on nor tested
+    assert cross["fit"] == {
+        "protocol_id": normal["protocol_id"],
+        "run_dir": normal["run_dir"],
+        "checkpoint": normal["checkpoint"]["path"],
+    }
+    assert cross["checkpoint"] == normal["checkpoint"] and calls[-1] == ("test", "challenging")
+
+    Path(normal["checkpoint"]["path"]).unlink()  # the Normal cell's fit is gone
+    assert cell_module.main(CELL_ARGV + ["--test-setting", "challenging", "--force"]) == 2
+    err = capsys.readouterr().err
+    assert (
+        f"results/block-insertion/mira-oracle.json was measured with {normal['checkpoint']['path']}"
+        in err
+    )
+    assert "no such checkpoint" in err and len(fakes.calls) == 2
+
+
 def test_the_cell_loader_checks_that_a_cross_setting_cell_names_its_fit(fakes):
     path, cross = run(test_setting="challenging")
     stored = json.loads(path.read_text())

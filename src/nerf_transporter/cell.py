@@ -11,10 +11,11 @@ policy trained and tested in a setting other than Normal).
 
 `--test-setting S` (another setting than `--setting`, e.g. `challenging`) tests the fit of the cell
 `--setting` names, with the same options (`--episodes` included: it is part of the fit's protocol),
-on the first test seeds of S: the same protocol folder and run, never fitted again (fitted there
-first, exactly as that cell would, where the fit is missing or unfinished), the same validation
-rounds on the training setting and the same chosen checkpoint, tested in S (mira searches S's view
-grid), written to `<results>/<task>-<S>/<row>.json`. Its protocol is the fit's tested in S, with
+on the first test seeds of S: the run folder and checkpoint that cell names, never fitted again
+(an error where that checkpoint is not under `--logs`; before that cell is measured, the fit it
+will take: fitted there first, exactly as that cell would, where the fit is missing or
+unfinished), with the same validation rounds on the training setting, tested in S (mira searches
+S's view grid), written to `<results>/<task>-<S>/<row>.json`. Its protocol is the fit's tested in S, with
 `trained_setting` and `fit_protocol_id` added, and the cell names its fit (`fit`: protocol id, run
 folder, checkpoint); `--force` then tests that checkpoint again (a fresh fit is the training
 setting's cell's `--force`).
@@ -421,6 +422,51 @@ def fit_run(runs: Path, force: bool, cell: Path) -> tuple[Path, Path | None]:
     return run_dir, None
 
 
+def named_fit(cell: Path, fit: dict[str, Any], runs: Path, input_kind: str) -> Path | None:
+    """The checkpoint under `runs` that the cell file `cell` tested, where it holds the cell of the
+    fit protocol `fit` (a test of that fit in another setting tests the same checkpoint); None
+    where it holds no cell of `fit` (none yet, or one of another protocol). CellError where it
+    cannot be read, or names a checkpoint that is not under `runs` (wherever the logs were moved,
+    `<protocol id>/version_N/checkpoints/<name>` of `runs`' protocol id)."""
+    if not cell.exists():
+        return None
+    try:
+        stored = load_cell(cell)
+    except CellFileError as error:
+        raise CellError(f"{error}; a test in another setting tests the fit it names") from error
+    if stored_protocol(stored, input_kind) != fit:
+        return None
+    recorded = Path(stored["checkpoint"]["path"])
+    checkpoint = runs.joinpath(*recorded.parts[-3:])
+    if recorded.parts[-4:-3] != (runs.name,) or not checkpoint.is_file():
+        raise CellError(
+            f"{cell} was measured with {recorded}, and there is no such checkpoint {checkpoint}: "
+            "a test in another setting tests the fit of its training setting's cell (--logs "
+            "names the folder that holds the fit runs; --force without --test-setting fits "
+            "that cell again)"
+        )
+    return checkpoint
+
+
+def chosen_record(
+    validation: list[dict[str, Any]], run_dir: Path, named: Path | None
+) -> dict[str, Any]:
+    """The validation record of the checkpoint to test: of `named` (`named_fit`) where given,
+    else the best (`best_record`); CellError where there is none."""
+    if named is None:
+        chosen = best_record(validation)
+    else:
+        chosen = next((r for r in validation if Path(r["checkpoint"]).name == named.name), None)
+    if chosen is None:
+        raise CellError(
+            f"no checkpoint under {run_dir} has a validation round without erred episodes; see "
+            "the fit's log, fix the cause and run again with --force"
+            if named is None
+            else f"{named} has no validation round in {run_dir}"
+        )
+    return chosen
+
+
 def git_state() -> dict[str, Any]:
     """{"commit": HEAD of the package's checkout, "dirty": tracked files changed}; None each
     outside a git checkout."""
@@ -593,20 +639,23 @@ def run_cell(
     with cell_lock(runs):
         if not force and measured(path, protocol, input_kind):
             return path, None  # measured meanwhile by the command that held the lock
-        # a cross-setting cell never fits afresh: its fit is the training setting's cell's
-        run_dir, resume = fit_run(runs, force and not cross, path)
-        if resume is None or checkpoint_step(resume) < fit_protocol["steps"]:
-            with removed_if_unused([run_dir] if resume is None else []):
-                fit(without_closed_loop(config) if fit_only else config, run_dir, resume, device)
+        # a cross-setting cell never fits afresh: its fit is the one its training setting's cell
+        # names, or, before that cell is measured, the fit that cell will take
+        fit_cell = cell_path(results, fit_protocol)
+        named = named_fit(fit_cell, fit_protocol, runs, input_kind) if cross else None
+        if named is not None:
+            run_dir = named.parent.parent
+        else:
+            run_dir, resume = fit_run(runs, force and not cross, path)
+            if resume is None or checkpoint_step(resume) < fit_protocol["steps"]:
+                with removed_if_unused([run_dir] if resume is None else []):
+                    fit(
+                        without_closed_loop(config) if fit_only else config, run_dir, resume, device
+                    )
         if fit_only:
             return run_dir, None
         validation = validate(run_dir, fit_protocol, device, eval_workers)
-    chosen = best_record(validation)
-    if chosen is None:
-        raise CellError(
-            f"no checkpoint under {run_dir} has a validation round without erred episodes; see "
-            "the fit's log, fix the cause and run again with --force"
-        )
+    chosen = chosen_record(validation, run_dir, named)
     with cell_lock(runs, TEST_LOCK.format(setting=test_setting)):
         if not force and measured(path, protocol, input_kind):
             return path, None  # measured meanwhile by the command that held the lock
