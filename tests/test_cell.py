@@ -5,6 +5,7 @@ import functools
 import itertools
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -17,7 +18,7 @@ import yaml
 from nerf_transporter import cell as cell_module
 from nerf_transporter.atomic import write_new_json
 from nerf_transporter.cell import CellError, apply_budget, resolve_config, run_cell
-from nerf_transporter.cli import build_cli
+from nerf_transporter.cli import build_cli, free_name
 from nerf_transporter.data.datamodule import RavensDataModule
 from nerf_transporter.evaluation.cells import CellFileError, find_records, load_cell
 from nerf_transporter.evaluation.metrics import summarize
@@ -82,6 +83,9 @@ class FakeLightning:
         logger = config["trainer"]["logger"]["init_args"]
         folder = Path(logger["save_dir"], logger["version"], "checkpoints")
         folder.mkdir(parents=True, exist_ok=True)
+        # the config, saved in the run folder as Lightning's RunConfigCallback does
+        saved = folder.parent / free_name(folder.parent, "config", "fit")
+        saved.write_text(args[args.index("--config") + 1])
         (saver,) = [
             c for c in config["trainer"]["callbacks"] if "ModelCheckpoint" in c["class_path"]
         ]
@@ -610,6 +614,138 @@ def test_a_fresh_fit_failing_before_a_checkpoint_leaves_no_run_folder_nor_config
         run()
     assert during == [cell_module.SEGMENTS]  # the config goes to the fit as text, not a file
     assert not list(Path("logs").rglob("version_*"))
+
+
+def committed_cells() -> list[Path]:
+    """The run-cell cells of this checkout's world under results/ (sweeps included)."""
+    paths = sorted((REPO / "results").rglob("*.json"))
+    return [
+        path
+        for path in paths
+        if "archive" not in path.relative_to(REPO).parts
+        and "protocol" in json.loads(path.read_text())
+    ]
+
+
+def test_every_committed_cell_keeps_its_protocol_and_id():
+    cells = committed_cells()
+    assert len(cells) == 73  # the 48 cells of the table, 6 trained Challenging, 19 of the sweeps
+    for path in cells:
+        cell = load_cell(path)
+        recomputed = cell_module.stored_protocol(cell, METHODS[cell["method"]].input_kind)
+        assert (recomputed, cell_module.protocol_id(recomputed)) == (
+            cell["protocol"],
+            cell["protocol_id"],
+        ), path
+
+
+def test_every_committed_cell_is_measured_under_the_command_it_was_run_with(fakes, monkeypatch):
+    """Its options and overlays as README's commands give them, the configs resolved for real."""
+    monkeypatch.setattr(cell_module, "resolve_config", real_config)
+    for path in committed_cells():
+        cell = json.loads(path.read_text())
+        protocol = cell["protocol"]
+        options = dict(
+            task=protocol["task"],
+            method=protocol["method"],
+            setting=protocol.get("trained_setting", protocol["setting"]),
+            test_setting=protocol["setting"],
+            imagery=protocol["imagery"],
+            steps=protocol["steps"],
+            batch_size=protocol["batch_size"],
+            lr=protocol["lr"],
+            episodes=protocol["test_episodes"],
+            val_every=protocol["validation_every"],
+            val_episodes=protocol["validation_episodes"],
+            overlays=[REPO / overlay for overlay in cell["overlays"]],
+            config_dir=REPO / "configs",
+            results=path.parent.parent,
+        )
+        assert run_cell(**options) == (path, None), path
+    assert fakes.calls == []
+
+
+TRAINING_OVERLAYS = {
+    "trainer.accumulate_grad_batches": ("trainer: {accumulate_grad_batches: 2}", 2),
+    "trainer.gradient_clip_val": ("trainer: {gradient_clip_val: 0.5}", 0.5),
+    "seed_everything": ("seed_everything: 7", 7),
+    "data.augment": ("data: {init_args: {augment: false}}", False),
+}
+
+
+def test_an_overlay_changing_training_is_another_protocol_and_never_resumes_a_fit(
+    fakes, monkeypatch
+):
+    monkeypatch.setattr(cell_module, "resolve_config", real_config)
+    fakes.interrupt_at = 4
+    with pytest.raises(KeyboardInterrupt):
+        run()
+    fakes.interrupt_at = None
+    clipped = Path("clip.yaml")
+    clipped.write_text(TRAINING_OVERLAYS["trainer.gradient_clip_val"][0])
+    # not the interrupted fit without the clip: a fit of its own
+    _, record = run(overlays=[clipped], results=Path("clipped"))
+    assert fakes.calls == [None, None] and record["protocol"]["training"] == {
+        "trainer.gradient_clip_val": 0.5
+    }
+    unclipped = Path(run()[1]["run_dir"])  # the interrupted fit, resumed
+    assert fakes.calls[-1] == str(unclipped / "checkpoints" / "step000004.ckpt")
+    assert Path(record["run_dir"]).parent != unclipped.parent
+    for key, (text, value) in TRAINING_OVERLAYS.items():
+        overlay = Path(f"{key}.yaml")
+        overlay.write_text(text)
+        with pytest.raises(
+            CellError, match=re.escape(f"training None there, {{'{key}': {value}}}")
+        ):
+            run(overlays=[overlay])  # not "the same protocol: skipped"
+    assert len(fakes.calls) == 3
+
+
+def merged(config: dict, overlay: dict) -> dict:
+    """`config` with the settings of `overlay` in place (dicts merged key by key)."""
+    both = {**config}
+    for key, value in overlay.items():
+        both[key] = merged(config.get(key, {}), value) if isinstance(value, dict) else value
+    return both
+
+
+def test_the_gpu_overlays_leave_the_protocol_but_mixed_precision_is_another():
+    """Where and how fast a fit runs is no part of its protocol (a `--fit-only` fit on a GPU
+    machine is found by the same command without the overlay); its arithmetic is. (The overlays
+    are merged into the resolved config here: it is resolved where no GPU is.)"""
+    files = cell_module.config_files(REPO / "configs", "block-insertion", "normal", "mira")
+    config = real_config(files)
+
+    def protocol(*overlays: str) -> dict:
+        overlaid = config
+        for name in overlays:
+            overlay = yaml.safe_load((REPO / "configs" / "gpu" / f"{name}.yaml").read_text())
+            overlaid = merged(overlaid, overlay)
+        return cell_module.cell_protocol(overlaid, "mira", "imagery")
+
+    assert protocol("h100") == protocol("shared", "cuda_graphs") == protocol()
+    assert protocol("h100", "bf16") == protocol() | {
+        "training": {"trainer.precision": "bf16-mixed"}
+    }
+
+
+def test_a_run_fitted_under_other_settings_is_neither_resumed_nor_tested(fakes, capsys):
+    """As an earlier run-cell, whose protocol left gradient clipping out, left its fit in the
+    folder of the protocol without it."""
+    fakes.interrupt_at = 4
+    with pytest.raises(KeyboardInterrupt):
+        run()
+    (saved,) = Path("logs/cells").rglob("config.yaml")
+    config = yaml.safe_load(saved.read_text())
+    config["trainer"]["gradient_clip_val"] = 0.5
+    saved.write_text(yaml.safe_dump(config))
+    assert cell_module.main(CELL_ARGV) == 2
+    err = capsys.readouterr().err
+    assert f"{saved.parent} was fitted under other settings (trainer.gradient_clip_val 0.5 " in err
+    assert "there, None here; " in err and len(fakes.calls) == 1
+    fakes.interrupt_at = None
+    _, record = run(force=True)  # a fresh fit
+    assert fakes.calls[-1] is None and record["run_dir"] != str(saved.parent)
 
 
 def test_colour_augmentation_is_a_protocol_of_its_own_and_its_absence_changes_no_id():

@@ -22,11 +22,15 @@ setting's cell's `--force`).
 
 A cell's protocol is everything that decides its number but the code: task, setting, method,
 imagery, demonstrations, steps, batch size, learning rate, resolution, validation and test
-episodes, and the model's architecture (its other arguments, e.g. width and crop size, so that a
-`--config` overlay that widens the networks is another protocol). Each protocol fits in its own
-folder `<logs>/<task>[-<setting>]/<row>/<protocol id>/version_N`, so a rerun resumes the latest run
-from its checkpoint of the highest step (wherever the folder was moved), never trains a finished
-fit again, and skips a cell whose JSON holds the same protocol (read by `evaluation/cells.py`: a
+episodes, the model's architecture (its other arguments, e.g. width and crop size, so that a
+`--config` overlay that widens the networks is another protocol) and, under `training`, every other
+setting that changes what a fit learns where it differs from the value the cells so far were
+fitted with (seed, gradient accumulation and clipping, precision, augmentation, optimizer, ...:
+`training_settings`; where a fit runs, what it logs and how fast its data loads are no part of
+it). Each protocol fits in its own folder `<logs>/<task>[-<setting>]/<row>/<protocol id>/version_N`,
+so a rerun resumes the latest run from its checkpoint of the highest step (wherever the folder was
+moved; never a run whose saved config differs in such a setting), never trains a finished fit
+again, and skips a cell whose JSON holds the same protocol (read by `evaluation/cells.py`: a
 cell of another world is an error); `--force` measures it again from a fresh fit, in a run folder
 of its own that `--force` resumes until the cell is written from it (so an interrupted `--force`
 continues where it stopped, in a later session too). One command at a time fits and validates a protocol, and one at a time tests it in a setting: each holds a lock in
@@ -116,6 +120,88 @@ MODEL_ARGS_NOT_ARCHITECTURE = (
     "log_images_every_n_steps",
     "cuda_graphs",
 )
+
+
+# the resolved config's settings beyond the protocol's own keys that change what a fit learns,
+# with the value every cell so far was fitted with: a cell's protocol names those that differ
+# (`training_settings`), so that the ids of cells fitted with these values stay the same. A
+# setting named neither here nor in NOT_TRAINING counts as one that changes the fit, against None
+# (where a resolved config leaves it out): e.g. a gradient clip, precision, optimizer or callback.
+TRAINING_DEFAULTS = {
+    "seed_everything": 0,
+    "trainer.accumulate_grad_batches": 1,
+    "trainer.barebones": False,
+    "trainer.fast_dev_run": False,
+    "trainer.num_nodes": 1,
+    "trainer.overfit_batches": 0.0,
+    "trainer.reload_dataloaders_every_n_epochs": 0,
+    "trainer.sync_batchnorm": False,
+    "trainer.use_distributed_sampler": True,
+    "data.class_path": "nerf_transporter.data.datamodule.RavensDataModule",
+    "data.augment": True,
+    "data.n_negative_views": 1,
+    "data.n_val_demos": 0,
+    "data.negative_view_scale": 0.15,
+    "data.nerf_image_size": [480, 640],
+    "data.nerf_views": 30,
+    "data.samples_per_epoch": 1000,
+    "data.seed": 0,
+}
+# settings outside `training_settings`: the protocol's own keys, and those that change where a
+# fit runs (accelerator, devices: the cell records the machine), what it logs or tests, how fast
+# its data loads, or which command started it
+NOT_TRAINING = {
+    "ckpt_path",
+    "weights_only",
+    *(
+        f"trainer.{key}"
+        for key in (
+            "max_steps",
+            "accelerator",
+            "strategy",
+            "devices",
+            "logger",
+            "log_every_n_steps",
+            "enable_progress_bar",
+            "enable_model_summary",
+            "enable_checkpointing",
+            "enable_autolog_hparams",
+            "profiler",
+            "default_root_dir",
+            "model_registry",
+            "detect_anomaly",
+            "inference_mode",
+            "check_val_every_n_epoch",
+            "val_check_interval",
+            "num_sanity_val_steps",
+            "limit_val_batches",
+            "limit_test_batches",
+            "limit_predict_batches",
+        )
+    ),
+    *(
+        f"data.{key}"
+        for key in (
+            "task",
+            "setting",
+            "n_demos",
+            "batch_size",
+            "imagery",
+            "pixel_size",
+            "n_rotations",
+            "test_episodes",
+            "colour_augment",
+            "data_dir",
+            "num_workers",
+            "pin_memory",
+            "generate_missing",
+            "generate_workers",
+            "input_kind",
+            "test_setting",
+            "test_workers",
+        )
+    ),
+}
 
 
 class CellError(ValueError):
@@ -279,7 +365,34 @@ def cell_protocol(config: dict[str, Any], method: str, input_kind: str) -> dict[
     if data.get("colour_augment"):
         # only when on, so that the protocol ids of cells measured before the option stay the same
         protocol["colour_augment"] = True
+    if training := training_settings(config):
+        protocol["training"] = training
     return protocol
+
+
+def training_settings(config: dict[str, Any]) -> dict[str, Any]:
+    """{dotted key: value} of the settings of the resolved run config `config` that change what a
+    fit learns beyond the protocol's own keys, where they differ from the value every cell so far
+    was fitted with (`TRAINING_DEFAULTS`): callbacks other than the validation and checkpoint ones,
+    and every setting not in `NOT_TRAINING`, e.g. `trainer.gradient_clip_val` or `data.augment`."""
+    trainer, data = config.get("trainer") or {}, config.get("data") or {}
+    sections = {"trainer", "model", "data"}
+    settings = {key: value for key, value in config.items() if key not in sections}
+    settings |= {f"trainer.{key}": value for key, value in trainer.items() if key != "callbacks"}
+    settings |= {f"data.{key}": value for key, value in (data.get("init_args") or {}).items()}
+    settings["data.class_path"] = data.get("class_path")
+    known = {CALLBACK, CHECKPOINT}
+    others = [
+        callback
+        for callback in trainer.get("callbacks") or []
+        if str(callback.get("class_path", "")).rsplit(".", 1)[-1] not in known
+    ]
+    settings["trainer.callbacks"] = others or None
+    return {
+        key: value
+        for key, value in sorted(settings.items())
+        if key not in NOT_TRAINING and value != TRAINING_DEFAULTS.get(key)
+    }
 
 
 def cell_name(protocol: dict[str, Any]) -> tuple[str, str]:
@@ -467,6 +580,32 @@ def chosen_record(
     return chosen
 
 
+def check_fitted_as(run_dir: Path, config: dict[str, Any]) -> None:
+    """CellError naming the settings that change what a fit learns (`training_settings`) where a
+    config the run `run_dir` was fitted with (`config*.yaml`, saved there by Lightning) differs
+    from `config` in one: a run is neither resumed nor tested under other settings (a run that an
+    earlier run-cell, whose protocol left such a setting out, fitted into this protocol's folder)."""
+    wanted = training_settings(config)
+    for saved in sorted(run_dir.glob("config*.yaml")):
+        try:
+            fitted = training_settings(yaml.safe_load(saved.read_text()) or {})
+        except (OSError, yaml.YAMLError, AttributeError) as error:
+            raise CellError(f"{saved} cannot be read as a run config ({error})") from error
+        keys = sorted(
+            key for key in set(fitted) | set(wanted) if fitted.get(key) != wanted.get(key)
+        )
+        if keys:
+            differences = ", ".join(
+                f"{key} {fitted.get(key, TRAINING_DEFAULTS.get(key))} there, "
+                f"{wanted.get(key, TRAINING_DEFAULTS.get(key))} here"
+                for key in keys
+            )
+            raise CellError(
+                f"{run_dir} was fitted under other settings ({differences}; {saved}): a fit is "
+                "not resumed nor tested under settings it was not fitted with; --force fits afresh"
+            )
+
+
 def git_state() -> dict[str, Any]:
     """{"commit": HEAD of the package's checkout, "dirty": tracked files changed}; None each
     outside a git checkout."""
@@ -647,6 +786,8 @@ def run_cell(
             run_dir = named.parent.parent
         else:
             run_dir, resume = fit_run(runs, force and not cross, path)
+            if resume is not None:
+                check_fitted_as(run_dir, config)
             if resume is None or checkpoint_step(resume) < fit_protocol["steps"]:
                 with removed_if_unused([run_dir] if resume is None else []):
                     fit(
