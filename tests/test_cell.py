@@ -20,6 +20,7 @@ from nerf_transporter.atomic import write_new_json
 from nerf_transporter.cell import CellError, apply_budget, resolve_config, run_cell
 from nerf_transporter.cli import build_cli, free_name
 from nerf_transporter.data.datamodule import RavensDataModule
+from nerf_transporter.device_info import describe_device
 from nerf_transporter.evaluation.cells import CellFileError, find_records, load_cell
 from nerf_transporter.evaluation.metrics import summarize
 from nerf_transporter.evaluation.report import results_table
@@ -65,6 +66,22 @@ SCORES = {2: 0.5, 4: float("-inf"), 6: 0.5, 8: 0.25}
 VALIDATION_SUCCESSES = {2: 1, 4: 3, 6: 3, 8: 2}
 
 
+STEP_SECONDS = 10  # a training step of FakeLightning on a FakeClock
+
+
+class FakeClock:
+    """The cell module's `time.time` and `time.perf_counter`: `now`, moved on by the fakes and the
+    test."""
+
+    def __init__(self, now: float):
+        self.now = now
+
+    def time(self) -> float:
+        return self.now
+
+    perf_counter = time
+
+
 class FakeLightning:
     """Stands in for `build_cli(["fit", ...])`: writes a checkpoint with its validation score every
     `every_n_train_steps` up to `max_steps` (or raises KeyboardInterrupt after `interrupt_at`).
@@ -72,6 +89,7 @@ class FakeLightning:
 
     def __init__(self):
         self.calls, self.configs, self.interrupt_at = [], [], None
+        self.clock = None  # a FakeClock moved on by STEP_SECONDS a step, where given
 
     def __call__(self, args, **options):
         if options.get("run") is False:
@@ -97,6 +115,10 @@ class FakeLightning:
             checkpoint = {"global_step": step, "callbacks": {"ModelCheckpoint{...}": state}}
             torch.save(checkpoint, folder / f"step{step:06d}.ckpt")
             torch.save(checkpoint, folder / "last.ckpt")
+            if self.clock is not None:
+                self.clock.now += STEP_SECONDS * every
+                for name in (f"step{step:06d}.ckpt", "last.ckpt"):
+                    os.utime(folder / name, (self.clock.now, self.clock.now))
             if step == self.interrupt_at:
                 raise KeyboardInterrupt
 
@@ -184,9 +206,18 @@ def test_an_overlay_replacing_the_model_is_refused_before_anything_runs(fakes, m
 def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol(
     fakes, monkeypatch
 ):
+    fakes.clock = FakeClock(1000.0)
+    monkeypatch.setattr(cell_module, "time", fakes.clock)
+
+    def test_taking_30_s(*args, **kwargs):
+        fakes.clock.now += 30
+        return fake_test(*args, **kwargs)
+
+    monkeypatch.setattr(cell_module, "evaluate_checkpoints", test_taking_30_s)
     fakes.interrupt_at = 4
     with pytest.raises(KeyboardInterrupt):
-        run()
+        run()  # steps 1-4 in 40 s, killed
+    fakes.clock.now += 500  # until the same command runs again
     cell = Path("results/block-insertion/mira-oracle.json")
     assert not cell.exists()
     (runs,) = Path("logs/cells/block-insertion/mira-oracle").iterdir()  # one protocol folder
@@ -229,9 +260,13 @@ def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol
     assert stored["ci_low"] < 2 / 3 < stored["ci_high"]
     assert stored["config"]["trainer"]["max_steps"] == 8
     assert stored["config"]["data"]["init_args"]["imagery"] == "oracle"
-    assert len(stored["machine"]["fit"]) == 2 and stored["machine"]["test"]["cpu"]
+    assert stored["machine"] == {
+        "fit": [describe_device("cpu")] * 2,
+        "test": describe_device("cpu"),
+    }
     assert stored["world"] == world_fingerprint() and stored["torch"] == torch.__version__
-    assert stored["train_wall_s"] >= 0 and stored["test_wall_s"] >= 0
+    # steps 1-4 and 5-8, 40 s each; not the 500 s between the kill and the rerun
+    assert (stored["train_wall_s"], stored["test_wall_s"]) == (80, 30)
     # the report reads the cell into its own row
     header, rows = results_table(find_records([Path("results")]).records)
     assert rows[2][:2] == ["mira, oracle imagery", "67% (3, 21-94) / -"]
@@ -820,7 +855,10 @@ data:
     assert result.returncode == 0, result.stderr[-3000:]
     cell = json.loads((tmp_path / "results/block-insertion/mira-oracle.json").read_text())
     assert (cell["episodes"] + cell["errors"], cell["test_seeds"]) == (2, [1, 3])
-    assert cell["checkpoint"]["step"] in (2, 4) and cell["checkpoint"]["validation_episodes"] == 2
+    rounds = cell["validation"]
+    assert [r["step"] for r in rounds] == [2, 4] and cell["checkpoint"]["validation_episodes"] == 2
+    best = max(rounds, key=lambda r: (r["success_rate"] is not None, r["success_rate"], r["step"]))
+    assert cell["checkpoint"]["step"] == best["step"]  # the best round; of equals the later
     assert cell["imagery"] == "oracle" and cell["protocol"]["pixel_size"] == 0.0625
     assert cell["overlays"] == [str(overlay)]
     assert Path(tmp_path, cell["checkpoint"]["path"]).is_file()
