@@ -862,5 +862,8 @@ data:
     assert cell["imagery"] == "oracle" and cell["protocol"]["pixel_size"] == 0.0625
     assert cell["overlays"] == [str(overlay)]
     assert Path(tmp_path, cell["checkpoint"]["path"]).is_file()
+    # the config Lightning saved in the run names the settings the cell's protocol does
+    assert cell["protocol"]["training"] == {"data.samples_per_epoch": 4}
+    cell_module.check_fitted_as(Path(tmp_path, cell["run_dir"]), cell["config"])
     again = subprocess.run(argv, cwd=tmp_path, env=env, capture_output=True, text=True)
     assert again.returncode == 0 and "skipped" in again.stdout
