@@ -30,9 +30,19 @@ from nerf_transporter.methods import METHODS
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
 REPO = Path(__file__).resolve().parents[1]
+# the settings that change what is learned beyond the protocol's keys, at the table's values
+TRAINING = {
+    section: {
+        key.split(".", 1)[1]: value
+        for key, value in cell_module.TRAINING_DEFAULTS.items()
+        if key.startswith(f"{section}.") and key != "data.class_path"
+    }
+    for section in ("trainer", "data")
+}
 CONFIG = {
     "seed_everything": 0,
     "trainer": {
+        **TRAINING["trainer"],
         "max_steps": 40000,
         "callbacks": [
             {
@@ -57,6 +67,7 @@ CONFIG = {
             "pixel_size": 0.003125,
             "n_rotations": 36,
             "test_episodes": 100,
+            **TRAINING["data"],
         },
     },
 }
@@ -705,6 +716,7 @@ TRAINING_OVERLAYS = {
     "trainer.gradient_clip_val": ("trainer: {gradient_clip_val: 0.5}", 0.5),
     "seed_everything": ("seed_everything: 7", 7),
     "data.augment": ("data: {init_args: {augment: false}}", False),
+    "data.negative_view_scale": ("data: {init_args: {negative_view_scale: null}}", None),
 }
 
 

@@ -125,8 +125,9 @@ MODEL_ARGS_NOT_ARCHITECTURE = (
 # the resolved config's settings beyond the protocol's own keys that change what a fit learns,
 # with the value every cell so far was fitted with: a cell's protocol names those that differ
 # (`training_settings`), so that the ids of cells fitted with these values stay the same. A
-# setting named neither here nor in NOT_TRAINING counts as one that changes the fit, against None
-# (where a resolved config leaves it out): e.g. a gradient clip, precision, optimizer or callback.
+# setting named neither here nor in NOT_TRAINING counts as one that changes the fit, against None:
+# e.g. a gradient clip, precision, optimizer or callback. A resolved config leaves out the
+# settings that are None (`negative_view_scale: null` draws negatives uniformly).
 TRAINING_DEFAULTS = {
     "seed_everything": 0,
     "trainer.accumulate_grad_batches": 1,
@@ -377,7 +378,8 @@ def training_settings(config: dict[str, Any]) -> dict[str, Any]:
     and every setting not in `NOT_TRAINING`, e.g. `trainer.gradient_clip_val` or `data.augment`."""
     trainer, data = config.get("trainer") or {}, config.get("data") or {}
     sections = {"trainer", "model", "data"}
-    settings = {key: value for key, value in config.items() if key not in sections}
+    settings = dict.fromkeys(TRAINING_DEFAULTS)  # left out of a resolved config: None
+    settings |= {key: value for key, value in config.items() if key not in sections}
     settings |= {f"trainer.{key}": value for key, value in trainer.items() if key != "callbacks"}
     settings |= {f"data.{key}": value for key, value in (data.get("init_args") or {}).items()}
     settings["data.class_path"] = data.get("class_path")
