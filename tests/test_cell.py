@@ -457,6 +457,20 @@ def test_a_challenging_cell_tests_the_fit_its_normal_cell_names_not_a_later_refi
     assert "no such checkpoint" in err and len(fakes.calls) == 2
 
 
+def test_a_challenging_cell_of_a_fit_its_normal_cell_no_longer_names_is_not_skipped(fakes, capsys):
+    run()
+    _, old = run(test_setting="challenging")
+    _, refit = run(force=True)  # the Normal cell measured again, from a fresh fit
+    assert cell_module.main(CELL_ARGV + ["--test-setting", "challenging"]) == 2
+    err = capsys.readouterr().err
+    assert f"tested {old['fit']['checkpoint']}, and results/block-insertion/mira-oracle.json" in err
+    assert f"now names {refit['checkpoint']['path']}: --force tests that checkpoint" in err
+    _, cross = run(test_setting="challenging", force=True)
+    assert cross["fit"]["checkpoint"] == refit["checkpoint"]["path"] != old["fit"]["checkpoint"]
+    path = Path("results/block-insertion-challenging/mira-oracle.json")
+    assert run(test_setting="challenging") == (path, None)  # measured from the refit: skipped
+
+
 def test_the_cell_loader_checks_that_a_cross_setting_cell_names_its_fit(fakes):
     path, cross = run(test_setting="challenging")
     stored = json.loads(path.read_text())

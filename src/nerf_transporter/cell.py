@@ -18,7 +18,8 @@ unfinished), with the same validation rounds on the training setting, tested in 
 S's view grid), written to `<results>/<task>-<S>/<row>.json`. Its protocol is the fit's tested in S, with
 `trained_setting` and `fit_protocol_id` added, and the cell names its fit (`fit`: protocol id, run
 folder, checkpoint); `--force` then tests that checkpoint again (a fresh fit is the training
-setting's cell's `--force`).
+setting's cell's `--force`; a cell of a checkpoint that cell no longer names is an error, not
+skipped).
 
 A cell's protocol is everything that decides its number but the code: task, setting, method,
 imagery, demonstrations, steps, batch size, learning rate, resolution, validation and test
@@ -427,15 +428,22 @@ def stored_protocol(cell: dict[str, Any], input_kind: str) -> dict[str, Any]:
     return cross_protocol(fit, cell["setting"]) if "trained_setting" in cell["protocol"] else fit
 
 
-def measured(path: Path, protocol: dict[str, Any], input_kind: str) -> bool:
-    """Whether `path` holds this cell for `protocol`; a cell of another protocol is an error."""
+def measured(
+    path: Path, protocol: dict[str, Any], input_kind: str, fit_cell: Path | None = None
+) -> bool:
+    """Whether `path` holds this cell for `protocol`; a cell of another protocol is an error, and
+    so is a cross-setting cell that tested another checkpoint than the one `fit_cell` (the cell of
+    its fit, in the training setting) names, where that holds the cell of its fit."""
     if not path.exists():
         return False
     try:
-        stored = stored_protocol(load_cell(path), input_kind)
+        cell = load_cell(path)
     except CellFileError as error:
         raise CellError(f"{error}; --force replaces it") from error
+    stored = stored_protocol(cell, input_kind)
     if stored == protocol:
+        if fit_cell is not None:
+            _check_tested_fit(path, cell, fit_cell, input_kind)
         return True
     changed = ", ".join(
         f"{key} {stored.get(key)} there, {protocol.get(key)} here"
@@ -446,6 +454,25 @@ def measured(path: Path, protocol: dict[str, Any], input_kind: str) -> bool:
         f"{path} holds this cell under another protocol ({changed}); --force replaces it, "
         "--results <folder> keeps both"
     )
+
+
+def _check_tested_fit(path: Path, cell: dict[str, Any], fit_cell: Path, input_kind: str) -> None:
+    """CellError where the cross-setting cell `cell` (in `path`) tested another checkpoint than
+    `fit_cell` names, where that holds the cell of its fit (measured again since)."""
+    if not fit_cell.exists():
+        return
+    try:
+        fit = load_cell(fit_cell)
+    except CellFileError as error:
+        raise CellError(f"{error}; a test in another setting tests the fit it names") from error
+    if protocol_id(stored_protocol(fit, input_kind)) != cell["protocol"]["fit_protocol_id"]:
+        return
+    tested, named = cell["fit"]["checkpoint"], fit["checkpoint"]["path"]
+    if Path(tested).parts[-4:] != Path(named).parts[-4:]:  # wherever the logs were moved
+        raise CellError(
+            f"{path} tested {tested}, and {fit_cell}, the cell of its fit, now names {named}: "
+            "--force tests that checkpoint"
+        )
 
 
 @contextlib.contextmanager
@@ -764,7 +791,8 @@ def run_cell(
     cross = test_setting != setting
     protocol = cross_protocol(fit_protocol, test_setting) if cross else fit_protocol
     path = cell_path(results, protocol)
-    if not force and measured(path, protocol, input_kind):
+    fit_cell = cell_path(results, fit_protocol) if cross else None  # the cell that names its fit
+    if not force and measured(path, protocol, input_kind, fit_cell):
         return path, None
     runs = fit_folder(logs, fit_protocol)
     folders = [("fit runs", runs)]
@@ -778,12 +806,13 @@ def run_cell(
     check_writable(folders)
     device = device or ("cuda" if torch.cuda.is_available() else "cpu")
     with cell_lock(runs):
-        if not force and measured(path, protocol, input_kind):
+        if not force and measured(path, protocol, input_kind, fit_cell):
             return path, None  # measured meanwhile by the command that held the lock
         # a cross-setting cell never fits afresh: its fit is the one its training setting's cell
         # names, or, before that cell is measured, the fit that cell will take
-        fit_cell = cell_path(results, fit_protocol)
-        named = named_fit(fit_cell, fit_protocol, runs, input_kind) if cross else None
+        named = (
+            named_fit(fit_cell, fit_protocol, runs, input_kind) if fit_cell is not None else None
+        )
         if named is not None:
             run_dir = named.parent.parent
         else:
@@ -800,7 +829,7 @@ def run_cell(
         validation = validate(run_dir, fit_protocol, device, eval_workers)
     chosen = chosen_record(validation, run_dir, named)
     with cell_lock(runs, TEST_LOCK.format(setting=test_setting)):
-        if not force and measured(path, protocol, input_kind):
+        if not force and measured(path, protocol, input_kind, fit_cell):
             return path, None  # measured meanwhile by the command that held the lock
         return _test(
             config,
