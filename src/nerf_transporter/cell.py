@@ -15,9 +15,9 @@ on the first test seeds of S: the run folder and checkpoint that cell names, nev
 (an error where that checkpoint is not under `--logs`; before that cell is measured, the fit it
 will take: fitted there first, exactly as that cell would, where the fit is missing or
 unfinished), with the same validation rounds on the training setting, tested in S (mira searches
-S's view grid), written to `<results>/<task>-<S>/<row>.json`. Its protocol is the fit's tested in S, with
-`trained_setting` and `fit_protocol_id` added, and the cell names its fit (`fit`: protocol id, run
-folder, checkpoint); `--force` then tests that checkpoint again (a fresh fit is the training
+S's view grid), written to `<results>/<task>-<S>/<row>.json`. Its protocol is the fit's tested in
+S, with `trained_setting` and `fit_protocol_id` added, and the cell names its fit (`fit`: protocol
+id, run folder, checkpoint); `--force` then tests that checkpoint again (a fresh fit is the training
 setting's cell's `--force`; a cell of a checkpoint that cell no longer names is an error, not
 skipped).
 
