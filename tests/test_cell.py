@@ -1,9 +1,11 @@
 """`nerf-transporter run-cell`: protocol, skip, resume and the cell JSON (fit and test faked here;
 the slow test at the end runs a tiny cell for real)."""
 
+import functools
 import itertools
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -15,19 +17,32 @@ import yaml
 
 from nerf_transporter import cell as cell_module
 from nerf_transporter.atomic import write_new_json
-from nerf_transporter.cell import CellError, apply_budget, run_cell
+from nerf_transporter.cell import CellError, apply_budget, resolve_config, run_cell
+from nerf_transporter.cli import build_cli, free_name
 from nerf_transporter.data.datamodule import RavensDataModule
+from nerf_transporter.device_info import describe_device
 from nerf_transporter.evaluation.cells import CellFileError, find_records, load_cell
 from nerf_transporter.evaluation.metrics import summarize
 from nerf_transporter.evaluation.report import results_table
 from nerf_transporter.evaluation.rollout import EvaluationSpec
 from nerf_transporter.geometry import view_grid
+from nerf_transporter.methods import METHODS
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
 REPO = Path(__file__).resolve().parents[1]
+# the settings that change what is learned beyond the protocol's keys, at the table's values
+TRAINING = {
+    section: {
+        key.split(".", 1)[1]: value
+        for key, value in cell_module.TRAINING_DEFAULTS.items()
+        if key.startswith(f"{section}.") and key != "data.class_path"
+    }
+    for section in ("trainer", "data")
+}
 CONFIG = {
     "seed_everything": 0,
     "trainer": {
+        **TRAINING["trainer"],
         "max_steps": 40000,
         "callbacks": [
             {
@@ -52,6 +67,7 @@ CONFIG = {
             "pixel_size": 0.003125,
             "n_rotations": 36,
             "test_episodes": 100,
+            **TRAINING["data"],
         },
     },
 }
@@ -61,14 +77,34 @@ SCORES = {2: 0.5, 4: float("-inf"), 6: 0.5, 8: 0.25}
 VALIDATION_SUCCESSES = {2: 1, 4: 3, 6: 3, 8: 2}
 
 
+STEP_SECONDS = 10  # a training step of FakeLightning on a FakeClock
+
+
+class FakeClock:
+    """The cell module's `time.time` and `time.perf_counter`: `now`, moved on by the fakes and the
+    test."""
+
+    def __init__(self, now: float):
+        self.now = now
+
+    def time(self) -> float:
+        return self.now
+
+    perf_counter = time
+
+
 class FakeLightning:
     """Stands in for `build_cli(["fit", ...])`: writes a checkpoint with its validation score every
-    `every_n_train_steps` up to `max_steps` (or raises KeyboardInterrupt after `interrupt_at`)."""
+    `every_n_train_steps` up to `max_steps` (or raises KeyboardInterrupt after `interrupt_at`).
+    `build_cli(..., run=False)`, which resolves a config, is the real one."""
 
     def __init__(self):
         self.calls, self.configs, self.interrupt_at = [], [], None
+        self.clock = None  # a FakeClock moved on by STEP_SECONDS a step, where given
 
-    def __call__(self, args):
+    def __call__(self, args, **options):
+        if options.get("run") is False:
+            return build_cli(args, **options)
         config = yaml.safe_load(args[args.index("--config") + 1])  # the config's YAML text
         resume = args[args.index("--ckpt_path") + 1] if "--ckpt_path" in args else None
         self.calls.append(resume)
@@ -76,6 +112,9 @@ class FakeLightning:
         logger = config["trainer"]["logger"]["init_args"]
         folder = Path(logger["save_dir"], logger["version"], "checkpoints")
         folder.mkdir(parents=True, exist_ok=True)
+        # the config, saved in the run folder as Lightning's RunConfigCallback does
+        saved = folder.parent / free_name(folder.parent, "config", "fit")
+        saved.write_text(args[args.index("--config") + 1])
         (saver,) = [
             c for c in config["trainer"]["callbacks"] if "ModelCheckpoint" in c["class_path"]
         ]
@@ -87,6 +126,10 @@ class FakeLightning:
             checkpoint = {"global_step": step, "callbacks": {"ModelCheckpoint{...}": state}}
             torch.save(checkpoint, folder / f"step{step:06d}.ckpt")
             torch.save(checkpoint, folder / "last.ckpt")
+            if self.clock is not None:
+                self.clock.now += STEP_SECONDS * every
+                for name in (f"step{step:06d}.ckpt", "last.ckpt"):
+                    os.utime(folder / name, (self.clock.now, self.clock.now))
             if step == self.interrupt_at:
                 raise KeyboardInterrupt
 
@@ -140,12 +183,52 @@ def run(**options):
     return run_cell(**(arguments | options))
 
 
+@functools.cache
+def _resolved(files: tuple[Path, ...]) -> str:
+    return json.dumps(resolve_config(list(files)))
+
+
+def real_config(files: list[Path]) -> dict:
+    """`resolve_config(files)`, the real one (each file list resolved once per session)."""
+    return json.loads(_resolved(tuple(files)))
+
+
+@pytest.mark.parametrize("method", list(METHODS))
+def test_each_method_is_fitted_as_its_own_class_from_the_real_configs(fakes, monkeypatch, method):
+    monkeypatch.setattr(cell_module, "resolve_config", real_config)
+    imagery = "oracle" if METHODS[method].input_kind == "imagery" else None
+    _, stored = run(method=method, imagery=imagery)
+    (fitted,) = fakes.configs
+    class_path = f"nerf_transporter.methods.{METHODS[method].__name__}"
+    assert fitted["model"]["class_path"] == stored["config"]["model"]["class_path"] == class_path
+    assert stored["method"] == method
+
+
+def test_an_overlay_replacing_the_model_is_refused_before_anything_runs(fakes, monkeypatch, capsys):
+    monkeypatch.setattr(cell_module, "resolve_config", real_config)
+    overlay = Path("other-model.yaml")
+    overlay.write_text("model:\n  class_path: nerf_transporter.methods.TransporterSE2\n")
+    assert cell_module.main(CELL_ARGV + ["--config", str(overlay)]) == 2
+    err = capsys.readouterr().err
+    assert "the config's model is nerf_transporter.methods.TransporterSE2, not mira's" in err
+    assert fakes.calls == [] and not Path("logs").exists()
+
+
 def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol(
     fakes, monkeypatch
 ):
+    fakes.clock = FakeClock(1000.0)
+    monkeypatch.setattr(cell_module, "time", fakes.clock)
+
+    def test_taking_30_s(*args, **kwargs):
+        fakes.clock.now += 30
+        return fake_test(*args, **kwargs)
+
+    monkeypatch.setattr(cell_module, "evaluate_checkpoints", test_taking_30_s)
     fakes.interrupt_at = 4
     with pytest.raises(KeyboardInterrupt):
-        run()
+        run()  # steps 1-4 in 40 s, killed
+    fakes.clock.now += 500  # until the same command runs again
     cell = Path("results/block-insertion/mira-oracle.json")
     assert not cell.exists()
     (runs,) = Path("logs/cells/block-insertion/mira-oracle").iterdir()  # one protocol folder
@@ -188,9 +271,13 @@ def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol
     assert stored["ci_low"] < 2 / 3 < stored["ci_high"]
     assert stored["config"]["trainer"]["max_steps"] == 8
     assert stored["config"]["data"]["init_args"]["imagery"] == "oracle"
-    assert len(stored["machine"]["fit"]) == 2 and stored["machine"]["test"]["cpu"]
+    assert stored["machine"] == {
+        "fit": [describe_device("cpu")] * 2,
+        "test": describe_device("cpu"),
+    }
     assert stored["world"] == world_fingerprint() and stored["torch"] == torch.__version__
-    assert stored["train_wall_s"] >= 0 and stored["test_wall_s"] >= 0
+    # steps 1-4 and 5-8, 40 s each; not the 500 s between the kill and the rerun
+    assert (stored["train_wall_s"], stored["test_wall_s"]) == (80, 30)
     # the report reads the cell into its own row
     header, rows = results_table(find_records([Path("results")]).records)
     assert rows[2][:2] == ["mira, oracle imagery", "67% (3, 21-94) / -"]
@@ -202,11 +289,12 @@ def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol
     legacy = stored | {"protocol": {k: v for k, v in stored["protocol"].items() if k != "model"}}
     cell.write_text(json.dumps(legacy))  # written before the protocol had the model's entry
     assert run() == (cell, None)
-    wider = {**CONFIG, "model": {"init_args": {"lr": 1.0e-4, "width": 64}}}
+    wider = {**CONFIG, "model": CONFIG["model"] | {"init_args": {"lr": 1.0e-4, "width": 64}}}
     monkeypatch.setattr(cell_module, "resolve_config", lambda files: wider)
     with pytest.raises(CellError, match=r"model \{\} there, \{'width': 64\} here"):
         run()
-    graphed = {**CONFIG, "model": {"init_args": {"lr": 1.0e-4, "cuda_graphs": True}}}
+    graphed = CONFIG["model"] | {"init_args": {"lr": 1.0e-4, "cuda_graphs": True}}
+    graphed = {**CONFIG, "model": graphed}
     monkeypatch.setattr(cell_module, "resolve_config", lambda files: graphed)
     assert run() == (cell, None)  # CUDA graphs change how, not what: the same cell
     monkeypatch.setattr(cell_module, "resolve_config", lambda files: CONFIG)
@@ -341,6 +429,48 @@ def test_a_challenging_cell_resumes_an_unfinished_normal_fit_in_its_folder(fakes
     assert cell_module.main(argv) == 0 and len(fakes.calls) == 2  # measured: skipped
 
 
+def test_a_challenging_cell_tests_the_fit_its_normal_cell_names_not_a_later_refit(
+    fakes, monkeypatch, capsys
+):
+    calls = settings_tested(monkeypatch)
+    _, normal = run()
+    fakes.interrupt_at = 4
+    with pytest.raises(KeyboardInterrupt):
+        run(force=True)  # a refit, killed: the latest run folder, unfinished
+    fakes.interrupt_at = None
+    _, cross = run(test_setting="challenging")
+    assert len(fakes.calls) == 2  # the abandoned refit is neither trained on nor tested
+    assert cross["fit"] == {
+        "protocol_id": normal["protocol_id"],
+        "run_dir": normal["run_dir"],
+        "checkpoint": normal["checkpoint"]["path"],
+    }
+    assert cross["checkpoint"] == normal["checkpoint"] and calls[-1] == ("test", "challenging")
+
+    Path(normal["checkpoint"]["path"]).unlink()  # the Normal cell's fit is gone
+    assert cell_module.main(CELL_ARGV + ["--test-setting", "challenging", "--force"]) == 2
+    err = capsys.readouterr().err
+    assert (
+        f"results/block-insertion/mira-oracle.json was measured with {normal['checkpoint']['path']}"
+        in err
+    )
+    assert "no such checkpoint" in err and len(fakes.calls) == 2
+
+
+def test_a_challenging_cell_of_a_fit_its_normal_cell_no_longer_names_is_not_skipped(fakes, capsys):
+    run()
+    _, old = run(test_setting="challenging")
+    _, refit = run(force=True)  # the Normal cell measured again, from a fresh fit
+    assert cell_module.main(CELL_ARGV + ["--test-setting", "challenging"]) == 2
+    err = capsys.readouterr().err
+    assert f"tested {old['fit']['checkpoint']}, and results/block-insertion/mira-oracle.json" in err
+    assert f"now names {refit['checkpoint']['path']}: --force tests that checkpoint" in err
+    _, cross = run(test_setting="challenging", force=True)
+    assert cross["fit"]["checkpoint"] == refit["checkpoint"]["path"] != old["fit"]["checkpoint"]
+    path = Path("results/block-insertion-challenging/mira-oracle.json")
+    assert run(test_setting="challenging") == (path, None)  # measured from the refit: skipped
+
+
 def test_the_cell_loader_checks_that_a_cross_setting_cell_names_its_fit(fakes):
     path, cross = run(test_setting="challenging")
     stored = json.loads(path.read_text())
@@ -387,7 +517,7 @@ def test_a_test_with_erred_episodes_writes_no_cell_and_is_tested_again(fakes, mo
     monkeypatch.setattr(
         cell_module, "evaluate_checkpoints", lambda *a, **k: fake_test(*a, errors=1, **k)
     )
-    argv = ["--task", "block-insertion", "--method", "transporter_se2", "--steps", "8"]
+    argv = ["--task", "block-insertion", "--method", "mira", "--steps", "8"]
     argv += ["--val-every", "2", "--episodes", "3", "--configs", str(REPO / "configs")]
     assert cell_module.main(argv) == 1
     assert "1 of 3 episodes erred" in capsys.readouterr().err
@@ -395,7 +525,7 @@ def test_a_test_with_erred_episodes_writes_no_cell_and_is_tested_again(fakes, mo
     monkeypatch.setattr(cell_module, "evaluate_checkpoints", fake_test)
     assert cell_module.main(argv) == 0
     assert len(fakes.calls) == 1  # the finished fit was kept, only the test ran again
-    assert Path("results/block-insertion/transporter_se2.json").is_file()
+    assert Path("results/block-insertion/mira.json").is_file()
 
 
 def test_a_cell_records_the_strict_check_beside_the_success_rate(fakes, monkeypatch):
@@ -546,6 +676,140 @@ def test_a_fresh_fit_failing_before_a_checkpoint_leaves_no_run_folder_nor_config
     assert not list(Path("logs").rglob("version_*"))
 
 
+def committed_cells() -> list[Path]:
+    """The run-cell cells of this checkout's world under results/ (sweeps included)."""
+    paths = sorted((REPO / "results").rglob("*.json"))
+    return [
+        path
+        for path in paths
+        if "archive" not in path.relative_to(REPO).parts
+        and "protocol" in json.loads(path.read_text())
+    ]
+
+
+def test_every_committed_cell_keeps_its_protocol_and_id():
+    cells = committed_cells()
+    table = [path for path in cells if "sweep" not in path.relative_to(REPO).parts]
+    assert len(table) == 54  # the 48 cells of the table and 6 trained Challenging (and the sweeps')
+    for path in cells:
+        cell = load_cell(path)
+        recomputed = cell_module.stored_protocol(cell, METHODS[cell["method"]].input_kind)
+        assert (recomputed, cell_module.protocol_id(recomputed)) == (
+            cell["protocol"],
+            cell["protocol_id"],
+        ), path
+
+
+def test_every_committed_cell_is_measured_under_the_command_it_was_run_with(fakes, monkeypatch):
+    """Its options and overlays as README's commands give them, the configs resolved for real."""
+    monkeypatch.setattr(cell_module, "resolve_config", real_config)
+    for path in committed_cells():
+        cell = json.loads(path.read_text())
+        protocol = cell["protocol"]
+        options = dict(
+            task=protocol["task"],
+            method=protocol["method"],
+            setting=protocol.get("trained_setting", protocol["setting"]),
+            test_setting=protocol["setting"],
+            imagery=protocol["imagery"],
+            steps=protocol["steps"],
+            batch_size=protocol["batch_size"],
+            lr=protocol["lr"],
+            episodes=protocol["test_episodes"],
+            val_every=protocol["validation_every"],
+            val_episodes=protocol["validation_episodes"],
+            overlays=[REPO / overlay for overlay in cell["overlays"]],
+            config_dir=REPO / "configs",
+            results=path.parent.parent,
+        )
+        assert run_cell(**options) == (path, None), path
+    assert fakes.calls == []
+
+
+TRAINING_OVERLAYS = {
+    "trainer.accumulate_grad_batches": ("trainer: {accumulate_grad_batches: 2}", 2),
+    "trainer.gradient_clip_val": ("trainer: {gradient_clip_val: 0.5}", 0.5),
+    "seed_everything": ("seed_everything: 7", 7),
+    "data.augment": ("data: {init_args: {augment: false}}", False),
+    "data.negative_view_scale": ("data: {init_args: {negative_view_scale: null}}", None),
+}
+
+
+def test_an_overlay_changing_training_is_another_protocol_and_never_resumes_a_fit(
+    fakes, monkeypatch
+):
+    monkeypatch.setattr(cell_module, "resolve_config", real_config)
+    fakes.interrupt_at = 4
+    with pytest.raises(KeyboardInterrupt):
+        run()
+    fakes.interrupt_at = None
+    clipped = Path("clip.yaml")
+    clipped.write_text(TRAINING_OVERLAYS["trainer.gradient_clip_val"][0])
+    # not the interrupted fit without the clip: a fit of its own
+    _, record = run(overlays=[clipped], results=Path("clipped"))
+    assert fakes.calls == [None, None] and record["protocol"]["training"] == {
+        "trainer.gradient_clip_val": 0.5
+    }
+    unclipped = Path(run()[1]["run_dir"])  # the interrupted fit, resumed
+    assert fakes.calls[-1] == str(unclipped / "checkpoints" / "step000004.ckpt")
+    assert Path(record["run_dir"]).parent != unclipped.parent
+    for key, (text, value) in TRAINING_OVERLAYS.items():
+        overlay = Path(f"{key}.yaml")
+        overlay.write_text(text)
+        with pytest.raises(
+            CellError, match=re.escape(f"training None there, {{'{key}': {value}}}")
+        ):
+            run(overlays=[overlay])  # not "the same protocol: skipped"
+    assert len(fakes.calls) == 3
+
+
+def merged(config: dict, overlay: dict) -> dict:
+    """`config` with the settings of `overlay` in place (dicts merged key by key)."""
+    both = {**config}
+    for key, value in overlay.items():
+        both[key] = merged(config.get(key, {}), value) if isinstance(value, dict) else value
+    return both
+
+
+def test_the_gpu_overlays_leave_the_protocol_but_mixed_precision_is_another():
+    """Where and how fast a fit runs is no part of its protocol (a `--fit-only` fit on a GPU
+    machine is found by the same command without the overlay); its arithmetic is. (The overlays
+    are merged into the resolved config here: it is resolved where no GPU is.)"""
+    files = cell_module.config_files(REPO / "configs", "block-insertion", "normal", "mira")
+    config = real_config(files)
+
+    def protocol(*overlays: str) -> dict:
+        overlaid = config
+        for name in overlays:
+            overlay = yaml.safe_load((REPO / "configs" / "gpu" / f"{name}.yaml").read_text())
+            overlaid = merged(overlaid, overlay)
+        return cell_module.cell_protocol(overlaid, "mira", "imagery")
+
+    assert protocol("h100") == protocol("shared", "cuda_graphs") == protocol()
+    assert protocol("h100", "bf16") == protocol() | {
+        "training": {"trainer.precision": "bf16-mixed"}
+    }
+
+
+def test_a_run_fitted_under_other_settings_is_neither_resumed_nor_tested(fakes, capsys):
+    """As an earlier run-cell, whose protocol left gradient clipping out, left its fit in the
+    folder of the protocol without it."""
+    fakes.interrupt_at = 4
+    with pytest.raises(KeyboardInterrupt):
+        run()
+    (saved,) = Path("logs/cells").rglob("config.yaml")
+    config = yaml.safe_load(saved.read_text())
+    config["trainer"]["gradient_clip_val"] = 0.5
+    saved.write_text(yaml.safe_dump(config))
+    assert cell_module.main(CELL_ARGV) == 2
+    err = capsys.readouterr().err
+    assert f"{saved.parent} was fitted under other settings (trainer.gradient_clip_val 0.5 " in err
+    assert "there, None here; " in err and len(fakes.calls) == 1
+    fakes.interrupt_at = None
+    _, record = run(force=True)  # a fresh fit
+    assert fakes.calls[-1] is None and record["run_dir"] != str(saved.parent)
+
+
 def test_colour_augmentation_is_a_protocol_of_its_own_and_its_absence_changes_no_id():
     protocol = cell_module.cell_protocol(CONFIG, "mira", "imagery")
     data = CONFIG["data"] | {"init_args": CONFIG["data"]["init_args"] | {"colour_augment": False}}
@@ -618,9 +882,15 @@ data:
     assert result.returncode == 0, result.stderr[-3000:]
     cell = json.loads((tmp_path / "results/block-insertion/mira-oracle.json").read_text())
     assert (cell["episodes"] + cell["errors"], cell["test_seeds"]) == (2, [1, 3])
-    assert cell["checkpoint"]["step"] in (2, 4) and cell["checkpoint"]["validation_episodes"] == 2
+    rounds = cell["validation"]
+    assert [r["step"] for r in rounds] == [2, 4] and cell["checkpoint"]["validation_episodes"] == 2
+    best = max(rounds, key=lambda r: (r["success_rate"] is not None, r["success_rate"], r["step"]))
+    assert cell["checkpoint"]["step"] == best["step"]  # the best round; of equals the later
     assert cell["imagery"] == "oracle" and cell["protocol"]["pixel_size"] == 0.0625
     assert cell["overlays"] == [str(overlay)]
     assert Path(tmp_path, cell["checkpoint"]["path"]).is_file()
+    # the config Lightning saved in the run names the settings the cell's protocol does
+    assert cell["protocol"]["training"] == {"data.samples_per_epoch": 4}
+    cell_module.check_fitted_as(Path(tmp_path, cell["run_dir"]), cell["config"])
     again = subprocess.run(argv, cwd=tmp_path, env=env, capture_output=True, text=True)
     assert again.returncode == 0 and "skipped" in again.stdout

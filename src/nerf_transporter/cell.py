@@ -12,21 +12,27 @@ policy trained and tested in a setting other than Normal).
 
 `--test-setting S` (another setting than `--setting`, e.g. `challenging`) tests the fit of the cell
 `--setting` names, with the same options (`--episodes` included: it is part of the fit's protocol),
-on the first test seeds of S: the same protocol folder and run, never fitted again (fitted there
-first, exactly as that cell would, where the fit is missing or unfinished), the same validation
-rounds on the training setting and the same chosen checkpoint, tested in S (mira searches S's view
-grid), written to `<results>/<task>-<S>/<row>.json`. Its protocol is the fit's tested in S, with
-`trained_setting` and `fit_protocol_id` added, and the cell names its fit (`fit`: protocol id, run
-folder, checkpoint); `--force` then tests that checkpoint again (a fresh fit is the training
-setting's cell's `--force`).
+on the first test seeds of S: the run folder and checkpoint that cell names, never fitted again
+(an error where that checkpoint is not under `--logs`; before that cell is measured, the fit it
+will take: fitted there first, exactly as that cell would, where the fit is missing or
+unfinished), with the same validation rounds on the training setting, tested in S (mira searches
+S's view grid), written to `<results>/<task>-<S>/<row>.json`. Its protocol is the fit's tested in
+S, with `trained_setting` and `fit_protocol_id` added, and the cell names its fit (`fit`: protocol
+id, run folder, checkpoint); `--force` then tests that checkpoint again (a fresh fit is the training
+setting's cell's `--force`; a cell of a checkpoint that cell no longer names is an error, not
+skipped).
 
 A cell's protocol is everything that decides its number but the code: task, setting, method,
 imagery, demonstrations, steps, batch size, learning rate, resolution, validation and test
-episodes, and the model's architecture (its other arguments, e.g. width and crop size, so that a
-`--config` overlay that widens the networks is another protocol). Each protocol fits in its own
-folder `<logs>/<task>[-<setting>]/<row>/<protocol id>/version_N`, so a rerun resumes the latest run
-from its checkpoint of the highest step (wherever the folder was moved), never trains a finished
-fit again, and skips a cell whose JSON holds the same protocol (read by `evaluation/cells.py`: a
+episodes, the model's architecture (its other arguments, e.g. width and crop size, so that a
+`--config` overlay that widens the networks is another protocol) and, under `training`, every other
+setting that changes what a fit learns where it differs from the value the cells so far were
+fitted with (seed, gradient accumulation and clipping, precision, augmentation, optimizer, ...:
+`training_settings`; where a fit runs, what it logs and how fast its data loads are no part of
+it). Each protocol fits in its own folder `<logs>/<task>[-<setting>]/<row>/<protocol id>/version_N`,
+so a rerun resumes the latest run from its checkpoint of the highest step (wherever the folder was
+moved; never a run whose saved config differs in such a setting), never trains a finished fit
+again, and skips a cell whose JSON holds the same protocol (read by `evaluation/cells.py`: a
 cell of another world is an error); `--force` measures it again from a fresh fit, in a run folder
 of its own that `--force` resumes until the cell is written from it (so an interrupted `--force`
 continues where it stopped, in a later session too). One command at a time fits and validates a protocol, and one at a time tests it in a setting: each holds a lock in
@@ -47,6 +53,7 @@ import argparse
 import contextlib
 import copy
 import fcntl
+import importlib
 import json
 import logging
 import math
@@ -99,6 +106,7 @@ from nerf_transporter.splits import split_seed
 
 CALLBACK = "SuccessRateCallback"
 CHECKPOINT = "ModelCheckpoint"
+OFFLINE_VIEW_SEARCH = "OfflineViewSearch"  # mira's view search on demonstrations; no gradients
 MONITOR = "eval/success_rate"
 SEGMENTS = "fit-segments.json"  # in a run folder: one entry per fit started there
 FORCED = "forced-fit"  # in a run folder claimed by --force: resumed by --force until its cell lands
@@ -124,6 +132,90 @@ PROTOCOL_KEYS_BY_DEFAULT = {
     ("model", "view_choice"): "max_logit",
     ("data", "augment_distribution"): "uniform",
     ("data", "negative_transform"): "shared",
+}
+
+
+# the resolved config's settings beyond the protocol's own keys that change what a fit learns,
+# with the value every cell so far was fitted with: a cell's protocol names those that differ
+# (`training_settings`), so that the ids of cells fitted with these values stay the same. A
+# setting named neither here nor in NOT_TRAINING counts as one that changes the fit, against None:
+# e.g. a gradient clip, precision, optimizer or callback. A resolved config leaves out the
+# settings that are None (`negative_view_scale: null` draws negatives uniformly).
+TRAINING_DEFAULTS = {
+    "seed_everything": 0,
+    "trainer.accumulate_grad_batches": 1,
+    "trainer.barebones": False,
+    "trainer.fast_dev_run": False,
+    "trainer.num_nodes": 1,
+    "trainer.overfit_batches": 0.0,
+    "trainer.reload_dataloaders_every_n_epochs": 0,
+    "trainer.sync_batchnorm": False,
+    "trainer.use_distributed_sampler": True,
+    "data.class_path": "nerf_transporter.data.datamodule.RavensDataModule",
+    "data.augment": True,
+    "data.n_negative_views": 1,
+    "data.n_val_demos": 0,
+    "data.negative_view_scale": 0.15,
+    "data.nerf_image_size": [480, 640],
+    "data.nerf_views": 30,
+    "data.samples_per_epoch": 1000,
+    "data.seed": 0,
+}
+# settings outside `training_settings`: the protocol's own keys, and those that change where a
+# fit runs (accelerator, devices: the cell records the machine), what it logs or tests, how fast
+# its data loads, or which command started it
+NOT_TRAINING = {
+    "ckpt_path",
+    "weights_only",
+    *(
+        f"trainer.{key}"
+        for key in (
+            "max_steps",
+            "accelerator",
+            "strategy",
+            "devices",
+            "logger",
+            "log_every_n_steps",
+            "enable_progress_bar",
+            "enable_model_summary",
+            "enable_checkpointing",
+            "enable_autolog_hparams",
+            "profiler",
+            "default_root_dir",
+            "model_registry",
+            "detect_anomaly",
+            "inference_mode",
+            "check_val_every_n_epoch",
+            "val_check_interval",
+            "num_sanity_val_steps",
+            "limit_val_batches",
+            "limit_test_batches",
+            "limit_predict_batches",
+        )
+    ),
+    *(
+        f"data.{key}"
+        for key in (
+            "task",
+            "setting",
+            "n_demos",
+            "batch_size",
+            "imagery",
+            "pixel_size",
+            "n_rotations",
+            "test_episodes",
+            "colour_augment",
+            "data_dir",
+            "num_workers",
+            "pin_memory",
+            "generate_missing",
+            "generate_workers",
+            "input_kind",
+            "test_setting",
+            "test_workers",
+            *(key for section, key in PROTOCOL_KEYS_BY_DEFAULT if section == "data"),
+        )
+    ),
 }
 
 
@@ -167,6 +259,22 @@ def build_cli_from_python(args: list[str], **options: Any) -> Any:
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=r".*LightningCLI's args parameter is intended")
         return build_cli(args, **options)
+
+
+def check_model(config: dict[str, Any], method: str) -> None:
+    """CellError where the resolved config's model is not `method`'s class (a `--config` overlay
+    setting `model.class_path` would fit another method under this one's name)."""
+    class_path = config["model"].get("class_path", "")
+    module, _, name = class_path.rpartition(".")
+    try:
+        model = getattr(importlib.import_module(module), name)  # imported by the config resolved
+    except (ImportError, AttributeError, ValueError):
+        model = None
+    if model is not METHODS[method]:
+        raise CellError(
+            f"the config's model is {class_path or 'missing'}, not {method}'s class "
+            f"{METHODS[method].__module__}.{METHODS[method].__name__}: --method names what is fitted"
+        )
 
 
 def _callback(config: dict[str, Any], name: str) -> dict[str, Any]:
@@ -276,7 +384,35 @@ def cell_protocol(config: dict[str, Any], method: str, input_kind: str) -> dict[
         value = (model if section == "model" else data).get(key, default)
         if value != default:
             protocol[key] = value
+    if training := training_settings(config):
+        protocol["training"] = training
     return protocol
+
+
+def training_settings(config: dict[str, Any]) -> dict[str, Any]:
+    """{dotted key: value} of the settings of the resolved run config `config` that change what a
+    fit learns beyond the protocol's own keys, where they differ from the value every cell so far
+    was fitted with (`TRAINING_DEFAULTS`): callbacks other than the validation and checkpoint ones,
+    and every setting not in `NOT_TRAINING`, e.g. `trainer.gradient_clip_val` or `data.augment`."""
+    trainer, data = config.get("trainer") or {}, config.get("data") or {}
+    sections = {"trainer", "model", "data"}
+    settings = dict.fromkeys(TRAINING_DEFAULTS)  # left out of a resolved config: None
+    settings |= {key: value for key, value in config.items() if key not in sections}
+    settings |= {f"trainer.{key}": value for key, value in trainer.items() if key != "callbacks"}
+    settings |= {f"data.{key}": value for key, value in (data.get("init_args") or {}).items()}
+    settings["data.class_path"] = data.get("class_path")
+    known = {CALLBACK, CHECKPOINT, OFFLINE_VIEW_SEARCH}  # callbacks that leave the fit as it is
+    others = [
+        callback
+        for callback in trainer.get("callbacks") or []
+        if str(callback.get("class_path", "")).rsplit(".", 1)[-1] not in known
+    ]
+    settings["trainer.callbacks"] = others or None
+    return {
+        key: value
+        for key, value in sorted(settings.items())
+        if key not in NOT_TRAINING and value != TRAINING_DEFAULTS.get(key)
+    }
 
 
 def cell_name(protocol: dict[str, Any]) -> tuple[str, str]:
@@ -309,15 +445,22 @@ def stored_protocol(cell: dict[str, Any], input_kind: str) -> dict[str, Any]:
     return cross_protocol(fit, cell["setting"]) if "trained_setting" in cell["protocol"] else fit
 
 
-def measured(path: Path, protocol: dict[str, Any], input_kind: str) -> bool:
-    """Whether `path` holds this cell for `protocol`; a cell of another protocol is an error."""
+def measured(
+    path: Path, protocol: dict[str, Any], input_kind: str, fit_cell: Path | None = None
+) -> bool:
+    """Whether `path` holds this cell for `protocol`; a cell of another protocol is an error, and
+    so is a cross-setting cell that tested another checkpoint than the one `fit_cell` (the cell of
+    its fit, in the training setting) names, where that holds the cell of its fit."""
     if not path.exists():
         return False
     try:
-        stored = stored_protocol(load_cell(path), input_kind)
+        cell = load_cell(path)
     except CellFileError as error:
         raise CellError(f"{error}; --force replaces it") from error
+    stored = stored_protocol(cell, input_kind)
     if stored == protocol:
+        if fit_cell is not None:
+            _check_tested_fit(path, cell, fit_cell, input_kind)
         return True
     changed = ", ".join(
         f"{key} {stored.get(key)} there, {protocol.get(key)} here"
@@ -328,6 +471,25 @@ def measured(path: Path, protocol: dict[str, Any], input_kind: str) -> bool:
         f"{path} holds this cell under another protocol ({changed}); --force replaces it, "
         "--results <folder> keeps both"
     )
+
+
+def _check_tested_fit(path: Path, cell: dict[str, Any], fit_cell: Path, input_kind: str) -> None:
+    """CellError where the cross-setting cell `cell` (in `path`) tested another checkpoint than
+    `fit_cell` names, where that holds the cell of its fit (measured again since)."""
+    if not fit_cell.exists():
+        return
+    try:
+        fit = load_cell(fit_cell)
+    except CellFileError as error:
+        raise CellError(f"{error}; a test in another setting tests the fit it names") from error
+    if protocol_id(stored_protocol(fit, input_kind)) != cell["protocol"]["fit_protocol_id"]:
+        return
+    tested, named = cell["fit"]["checkpoint"], fit["checkpoint"]["path"]
+    if Path(tested).parts[-4:] != Path(named).parts[-4:]:  # wherever the logs were moved
+        raise CellError(
+            f"{path} tested {tested}, and {fit_cell}, the cell of its fit, now names {named}: "
+            "--force tests that checkpoint"
+        )
 
 
 @contextlib.contextmanager
@@ -417,6 +579,77 @@ def fit_run(runs: Path, force: bool, cell: Path) -> tuple[Path, Path | None]:
     if force:
         (run_dir / FORCED).write_text(f"claimed by run-cell --force to measure {cell} again\n")
     return run_dir, None
+
+
+def named_fit(cell: Path, fit: dict[str, Any], runs: Path, input_kind: str) -> Path | None:
+    """The checkpoint under `runs` that the cell file `cell` tested, where it holds the cell of the
+    fit protocol `fit` (a test of that fit in another setting tests the same checkpoint); None
+    where it holds no cell of `fit` (none yet, or one of another protocol). CellError where it
+    cannot be read, or names a checkpoint that is not under `runs` (wherever the logs were moved,
+    `<protocol id>/version_N/checkpoints/<name>` of `runs`' protocol id)."""
+    if not cell.exists():
+        return None
+    try:
+        stored = load_cell(cell)
+    except CellFileError as error:
+        raise CellError(f"{error}; a test in another setting tests the fit it names") from error
+    if stored_protocol(stored, input_kind) != fit:
+        return None
+    recorded = Path(stored["checkpoint"]["path"])
+    checkpoint = runs.joinpath(*recorded.parts[-3:])
+    if recorded.parts[-4:-3] != (runs.name,) or not checkpoint.is_file():
+        raise CellError(
+            f"{cell} was measured with {recorded}, and there is no such checkpoint {checkpoint}: "
+            "a test in another setting tests the fit of its training setting's cell (--logs "
+            "names the folder that holds the fit runs; --force without --test-setting fits "
+            "that cell again)"
+        )
+    return checkpoint
+
+
+def chosen_record(
+    validation: list[dict[str, Any]], run_dir: Path, named: Path | None
+) -> dict[str, Any]:
+    """The validation record of the checkpoint to test: of `named` (`named_fit`) where given,
+    else the best (`best_record`); CellError where there is none."""
+    if named is None:
+        chosen = best_record(validation)
+    else:
+        chosen = next((r for r in validation if Path(r["checkpoint"]).name == named.name), None)
+    if chosen is None:
+        raise CellError(
+            f"no checkpoint under {run_dir} has a validation round without erred episodes; see "
+            "the fit's log, fix the cause and run again with --force"
+            if named is None
+            else f"{named} has no validation round in {run_dir}"
+        )
+    return chosen
+
+
+def check_fitted_as(run_dir: Path, config: dict[str, Any]) -> None:
+    """CellError naming the settings that change what a fit learns (`training_settings`) where a
+    config the run `run_dir` was fitted with (`config*.yaml`, saved there by Lightning) differs
+    from `config` in one: a run is neither resumed nor tested under other settings (a run that an
+    earlier run-cell, whose protocol left such a setting out, fitted into this protocol's folder)."""
+    wanted = training_settings(config)
+    for saved in sorted(run_dir.glob("config*.yaml")):
+        try:
+            fitted = training_settings(yaml.safe_load(saved.read_text()) or {})
+        except (OSError, yaml.YAMLError, AttributeError) as error:
+            raise CellError(f"{saved} cannot be read as a run config ({error})") from error
+        keys = sorted(
+            key for key in set(fitted) | set(wanted) if fitted.get(key) != wanted.get(key)
+        )
+        if keys:
+            differences = ", ".join(
+                f"{key} {fitted.get(key, TRAINING_DEFAULTS.get(key))} there, "
+                f"{wanted.get(key, TRAINING_DEFAULTS.get(key))} here"
+                for key in keys
+            )
+            raise CellError(
+                f"{run_dir} was fitted under other settings ({differences}; {saved}): a fit is "
+                "not resumed nor tested under settings it was not fitted with; --force fits afresh"
+            )
 
 
 def git_state() -> dict[str, Any]:
@@ -570,11 +803,13 @@ def run_cell(
         val_episodes=val_episodes,
         eval_workers=eval_workers,
     )
+    check_model(config, method)
     fit_protocol = cell_protocol(config, method, input_kind)
     cross = test_setting != setting
     protocol = cross_protocol(fit_protocol, test_setting) if cross else fit_protocol
     path = cell_path(results, protocol)
-    if not force and measured(path, protocol, input_kind):
+    fit_cell = cell_path(results, fit_protocol) if cross else None  # the cell that names its fit
+    if not force and measured(path, protocol, input_kind, fit_cell):
         return path, None
     runs = fit_folder(logs, fit_protocol)
     folders = [("fit runs", runs)]
@@ -588,24 +823,30 @@ def run_cell(
     check_writable(folders)
     device = device or ("cuda" if torch.cuda.is_available() else "cpu")
     with cell_lock(runs):
-        if not force and measured(path, protocol, input_kind):
+        if not force and measured(path, protocol, input_kind, fit_cell):
             return path, None  # measured meanwhile by the command that held the lock
-        # a cross-setting cell never fits afresh: its fit is the training setting's cell's
-        run_dir, resume = fit_run(runs, force and not cross, path)
-        if resume is None or checkpoint_step(resume) < fit_protocol["steps"]:
-            with removed_if_unused([run_dir] if resume is None else []):
-                fit(without_closed_loop(config) if fit_only else config, run_dir, resume, device)
+        # a cross-setting cell never fits afresh: its fit is the one its training setting's cell
+        # names, or, before that cell is measured, the fit that cell will take
+        named = (
+            named_fit(fit_cell, fit_protocol, runs, input_kind) if fit_cell is not None else None
+        )
+        if named is not None:
+            run_dir = named.parent.parent
+        else:
+            run_dir, resume = fit_run(runs, force and not cross, path)
+            if resume is not None:
+                check_fitted_as(run_dir, config)
+            if resume is None or checkpoint_step(resume) < fit_protocol["steps"]:
+                with removed_if_unused([run_dir] if resume is None else []):
+                    fit(
+                        without_closed_loop(config) if fit_only else config, run_dir, resume, device
+                    )
         if fit_only:
             return run_dir, None
         validation = validate(run_dir, fit_protocol, device, eval_workers)
-    chosen = best_record(validation)
-    if chosen is None:
-        raise CellError(
-            f"no checkpoint under {run_dir} has a validation round without erred episodes; see "
-            "the fit's log, fix the cause and run again with --force"
-        )
+    chosen = chosen_record(validation, run_dir, named)
     with cell_lock(runs, TEST_LOCK.format(setting=test_setting)):
-        if not force and measured(path, protocol, input_kind):
+        if not force and measured(path, protocol, input_kind, fit_cell):
             return path, None  # measured meanwhile by the command that held the lock
         return _test(
             config,
