@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from nerf_transporter.atomic import unwritable_reason
+from nerf_transporter.atomic import UnwritableError, unwritable_reason
 
 # sub-command -> ("module:function", one-line help). Each function takes argv and returns an exit code.
 TOOLS: dict[str, tuple[str, str]] = {
@@ -235,8 +235,9 @@ def build_cli(
     `test`/`validate`/`predict` of a run's checkpoint log into that run. Configs are saved there
     without replacing one already present. Checkpoints load with `weights_only=True` unless
     `--weights_only false` is given. Before a run folder is claimed, the options are checked
-    (`RunArgumentError`): `--ckpt_path` a checkpoint file that loads, at least one step to fit and
-    one episode to test, the run folder and `--video` writable. The run folders claimed are
+    (`RunArgumentError`): `--ckpt_path` a checkpoint file that loads and whose hyper-parameters
+    name only this package's classes (nothing else it names is imported), at least one step to fit
+    and one episode to test, the run folder and `--video` writable. The run folders claimed are
     appended to `claimed` where given. Returns the `LightningCLI` object.
     """
     import lightning.pytorch as pl
@@ -298,14 +299,25 @@ def build_cli(
             return super().instantiate_trainer(**kwargs)
 
         def _parse_ckpt_path(self) -> None:
-            """A `--ckpt_path` file is checked (`check_checkpoint_file`) before Lightning reads
-            the hyper-parameters in it."""
+            """A `--ckpt_path` file is checked (`check_checkpoint_file`), and the classes its
+            hyper-parameters name (`check_checkpoint_classes`: jsonargparse would import them),
+            before Lightning reads the hyper-parameters in it."""
+            from nerf_transporter.evaluation.checkpoints import (
+                UntrustedCheckpointError,
+                check_checkpoint_classes,
+            )
+
             subcommand = self.config.get("subcommand")
             ckpt_path = self.config[subcommand].get("ckpt_path") if subcommand else None
             named = ckpt_path in ("last", "best", "hpc") or str(ckpt_path).startswith("registry")
             if ckpt_path is not None and not named and "://" not in str(ckpt_path):
                 weights_only = self.config[subcommand].get("weights_only")
                 check_checkpoint_file(Path(ckpt_path), weights_only)
+            if ckpt_path and Path(ckpt_path).is_file():  # the file Lightning reads them from
+                try:
+                    check_checkpoint_classes(ckpt_path, keys=("hyper_parameters",))
+                except UntrustedCheckpointError as error:
+                    raise RunArgumentError(f"--ckpt_path {error}") from None
             super()._parse_ckpt_path()
 
         def _check_arguments(self) -> None:
@@ -456,8 +468,8 @@ def lightning_main(args: list[str] | None = None) -> int:
     """The `lightning` console script: `lightning fit|validate|test|predict ...`.
 
     Exits 1 when a closed-loop test had erred episodes (their seeds are listed); 2 when
-    `--ckpt_path last` finds no run to resume, an option cannot run (`RunArgumentError`) or a
-    checkpoint holds more than weights. A failed command removes the run folder it claimed
+    `--ckpt_path last` finds no run to resume, an option cannot run (`RunArgumentError`), a folder
+    to write (the data's) cannot be written or a checkpoint holds more than weights. A failed command removes the run folder it claimed
     where that holds no checkpoint and no results file (`removed_if_unused`)."""
     from nerf_transporter.evaluation.testing import erred_seeds_line
 
@@ -465,7 +477,7 @@ def lightning_main(args: list[str] | None = None) -> int:
     try:
         with removed_if_unused(claimed):
             cli = build_cli(args, claimed=claimed)
-    except (NoRunToResumeError, RunArgumentError) as error:
+    except (NoRunToResumeError, RunArgumentError, UnwritableError) as error:
         print(f"lightning: {error}", file=sys.stderr)
         return 2
     except pickle.UnpicklingError as error:
