@@ -12,6 +12,7 @@ import pickle
 import re
 import shutil
 import sys
+import traceback
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
@@ -206,6 +207,30 @@ def check_checkpoint_file(path: Path, weights_only: bool | None) -> None:
         ) from error
 
 
+def refused_argument(error: BaseException) -> str | None:
+    """`<group>.init_args of <class>: <message>` of the ValueError a model or DataModule `__init__`
+    raised behind
+    `error` (jsonargparse wraps it in its report of the union of types it tried), None where the
+    error did not come from one."""
+    import lightning.pytorch as pl
+
+    seen = []
+    while error is not None and error not in seen:
+        seen.append(error)
+        error = error.__cause__ or error.__context__
+    for cause in reversed(seen):
+        if not isinstance(cause, ValueError):
+            continue
+        for frame, _ in traceback.walk_tb(cause.__traceback__):
+            owner = frame.f_locals.get("self")
+            if frame.f_code.co_name == "__init__" and isinstance(
+                owner, pl.LightningModule | pl.LightningDataModule
+            ):
+                group = "model" if isinstance(owner, pl.LightningModule) else "data"
+                return f"{group}.init_args of {type(owner).__name__}: {cause}"
+    return None
+
+
 def run_folder(checkpoint: str) -> Path | None:
     """The run folder (`.../version_N`) whose `checkpoints/` holds a local checkpoint, if any."""
     path = Path(checkpoint)
@@ -319,6 +344,18 @@ def build_cli(
                 except UntrustedCheckpointError as error:
                     raise RunArgumentError(f"--ckpt_path {error}") from None
             super()._parse_ckpt_path()
+
+        def instantiate_classes(self) -> None:
+            """A model or data argument its class refuses (a ValueError of its `__init__`, which
+            jsonargparse reports inside its own) is a RunArgumentError naming the class and the
+            problem."""
+            try:
+                super().instantiate_classes()
+            except ValueError as error:
+                refused = refused_argument(error)
+                if refused is None:
+                    raise
+                raise RunArgumentError(refused) from error
 
         def _check_arguments(self) -> None:
             """RunArgumentError for options the run would fail on after claiming its folder."""

@@ -35,6 +35,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from nerf_transporter.atomic import check_writable
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.drawing import bar_chart, line_chart
 from nerf_transporter.evaluation.cells import (
@@ -484,6 +485,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     try:
+        if args.plot:
+            check_writable("--plot", args.plot, file=True)
         found = find_records([Path(root) for root in args.roots])
         records = found.records
         if args.readme:
