@@ -84,3 +84,18 @@ def unwritable_reason(folder: str | os.PathLike) -> str | None:
     except OSError as error:
         return f"no file can be created in {existing} ({error.strerror or error})"
     return None
+
+
+class UnwritableError(ValueError):
+    """An output a command was asked to write cannot be written: found before any work is spent."""
+
+
+def check_writable(what: str, path: str | os.PathLike, *, file: bool = False) -> None:
+    """UnwritableError naming `what` (the option or the output) and `path` where no file can be
+    written into the folder `path` (with `file`: written as the file `path`), before any work is
+    spent on what goes there (`unwritable_reason`)."""
+    path = Path(path)
+    if file and path.is_dir():
+        raise UnwritableError(f"{what} {path} is a folder, not a file name")
+    if reason := unwritable_reason(path.parent if file else path):
+        raise UnwritableError(f"{what} {path} cannot be written: {reason}")

@@ -12,12 +12,13 @@ import pickle
 import re
 import shutil
 import sys
+import traceback
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from nerf_transporter.atomic import unwritable_reason
+from nerf_transporter.atomic import UnwritableError, unwritable_reason
 
 # sub-command -> ("module:function", one-line help). Each function takes argv and returns an exit code.
 TOOLS: dict[str, tuple[str, str]] = {
@@ -210,6 +211,30 @@ def check_checkpoint_file(path: Path, weights_only: bool | None) -> None:
         ) from error
 
 
+def refused_argument(error: BaseException) -> str | None:
+    """`<group>.init_args of <class>: <message>` of the ValueError a model or DataModule `__init__`
+    raised behind
+    `error` (jsonargparse wraps it in its report of the union of types it tried), None where the
+    error did not come from one."""
+    import lightning.pytorch as pl
+
+    seen = []
+    while error is not None and error not in seen:
+        seen.append(error)
+        error = error.__cause__ or error.__context__
+    for cause in reversed(seen):
+        if not isinstance(cause, ValueError):
+            continue
+        for frame, _ in traceback.walk_tb(cause.__traceback__):
+            owner = frame.f_locals.get("self")
+            if frame.f_code.co_name == "__init__" and isinstance(
+                owner, pl.LightningModule | pl.LightningDataModule
+            ):
+                group = "model" if isinstance(owner, pl.LightningModule) else "data"
+                return f"{group}.init_args of {type(owner).__name__}: {cause}"
+    return None
+
+
 def run_folder(checkpoint: str) -> Path | None:
     """The run folder (`.../version_N`) whose `checkpoints/` holds a local checkpoint, if any."""
     path = Path(checkpoint)
@@ -239,8 +264,9 @@ def build_cli(
     `test`/`validate`/`predict` of a run's checkpoint log into that run. Configs are saved there
     without replacing one already present. Checkpoints load with `weights_only=True` unless
     `--weights_only false` is given. Before a run folder is claimed, the options are checked
-    (`RunArgumentError`): `--ckpt_path` a checkpoint file that loads, at least one step to fit and
-    one episode to test, the run folder and `--video` writable. The run folders claimed are
+    (`RunArgumentError`): `--ckpt_path` a checkpoint file that loads and whose hyper-parameters
+    name only this package's classes (nothing else it names is imported), at least one step to fit
+    and one episode to test, the run folder and `--video` writable. The run folders claimed are
     appended to `claimed` where given. Returns the `LightningCLI` object.
     """
     import lightning.pytorch as pl
@@ -302,14 +328,25 @@ def build_cli(
             return super().instantiate_trainer(**kwargs)
 
         def _parse_ckpt_path(self) -> None:
-            """A `--ckpt_path` file is checked (`check_checkpoint_file`) before Lightning reads
-            the hyper-parameters in it."""
+            """A `--ckpt_path` file is checked (`check_checkpoint_file`), and the classes its
+            hyper-parameters name (`check_checkpoint_classes`: jsonargparse would import them),
+            before Lightning reads the hyper-parameters in it."""
+            from nerf_transporter.evaluation.checkpoints import (
+                UntrustedCheckpointError,
+                check_checkpoint_classes,
+            )
+
             subcommand = self.config.get("subcommand")
             ckpt_path = self.config[subcommand].get("ckpt_path") if subcommand else None
             named = ckpt_path in ("last", "best", "hpc") or str(ckpt_path).startswith("registry")
             if ckpt_path is not None and not named and "://" not in str(ckpt_path):
                 weights_only = self.config[subcommand].get("weights_only")
                 check_checkpoint_file(Path(ckpt_path), weights_only)
+            if ckpt_path and Path(ckpt_path).is_file():  # the file Lightning reads them from
+                try:
+                    check_checkpoint_classes(ckpt_path, keys=("hyper_parameters",))
+                except UntrustedCheckpointError as error:
+                    raise RunArgumentError(f"--ckpt_path {error}") from None
             from nerf_transporter.methods import TEST_TIME_OPTIONS
 
             model = self.config[subcommand].get("model") if subcommand else None
@@ -322,6 +359,18 @@ def build_cli(
                 model.init_args[key] = value
                 if getattr(model, "dict_kwargs", None):
                     model.dict_kwargs.pop(key, None)
+
+        def instantiate_classes(self) -> None:
+            """A model or data argument its class refuses (a ValueError of its `__init__`, which
+            jsonargparse reports inside its own) is a RunArgumentError naming the class and the
+            problem."""
+            try:
+                super().instantiate_classes()
+            except ValueError as error:
+                refused = refused_argument(error)
+                if refused is None:
+                    raise
+                raise RunArgumentError(refused) from error
 
         def _check_arguments(self) -> None:
             """RunArgumentError for options the run would fail on after claiming its folder."""
@@ -471,8 +520,8 @@ def lightning_main(args: list[str] | None = None) -> int:
     """The `lightning` console script: `lightning fit|validate|test|predict ...`.
 
     Exits 1 when a closed-loop test had erred episodes (their seeds are listed); 2 when
-    `--ckpt_path last` finds no run to resume, an option cannot run (`RunArgumentError`) or a
-    checkpoint holds more than weights. A failed command removes the run folder it claimed
+    `--ckpt_path last` finds no run to resume, an option cannot run (`RunArgumentError`), a folder
+    to write (the data's) cannot be written or a checkpoint holds more than weights. A failed command removes the run folder it claimed
     where that holds no checkpoint and no results file (`removed_if_unused`)."""
     from nerf_transporter.evaluation.testing import erred_seeds_line
 
@@ -480,7 +529,7 @@ def lightning_main(args: list[str] | None = None) -> int:
     try:
         with removed_if_unused(claimed):
             cli = build_cli(args, claimed=claimed)
-    except (NoRunToResumeError, RunArgumentError) as error:
+    except (NoRunToResumeError, RunArgumentError, UnwritableError) as error:
         print(f"lightning: {error}", file=sys.stderr)
         return 2
     except pickle.UnpicklingError as error:

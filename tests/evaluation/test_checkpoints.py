@@ -65,12 +65,12 @@ def test_every_checkpoint_of_a_run_is_evaluated_and_the_best_named(
     capsys.readouterr()
     stray = tmp_path / "stray.ckpt"
     stray.write_bytes((run / "checkpoints" / "step4.ckpt").read_bytes())
-    assert cli_main(["evaluate-checkpoints", *argv, "--checkpoint", str(stray)]) == 1
+    assert cli_main(["evaluate-checkpoints", *argv, "--checkpoint", str(stray)]) == 2
     assert f"{stray} is not a checkpoint file inside the run" in capsys.readouterr().err
 
 
 def test_a_run_without_checkpoints_is_an_error(tmp_path, capsys):
-    assert cli_main(["evaluate-checkpoints", str(tmp_path)]) == 1
+    assert cli_main(["evaluate-checkpoints", str(tmp_path)]) == 2
     assert "no readable .ckpt files" in capsys.readouterr().err
 
 

@@ -153,16 +153,16 @@ def test_failed_episodes_are_classed_by_pick_aim_and_settling(scene, tmp_path, c
 
 def test_a_cell_of_another_world_or_without_episodes_is_refused(scene, tmp_path, capsys):
     _cell(tmp_path, [_episode(scene[1], True)], world="0" * 16)
-    assert cli_main(["failures", str(tmp_path / "results"), "--no-progress"]) == 1
+    assert cli_main(["failures", str(tmp_path / "results"), "--no-progress"]) == 2
     error = capsys.readouterr().err
     assert "measured in world 0000000000000000" in error and "abc" in error
     _cell(tmp_path, [])
-    assert cli_main(["failures", str(tmp_path / "results"), "--no-progress"]) == 1
+    assert cli_main(["failures", str(tmp_path / "results"), "--no-progress"]) == 2
     assert "no episode results" in capsys.readouterr().err
     (tmp_path / "other.json").write_text("{}")
-    assert cli_main(["failures", str(tmp_path / "other.json")]) == 1
+    assert cli_main(["failures", str(tmp_path / "other.json")]) == 2
     assert "other.json lacks method" in capsys.readouterr().err
-    assert cli_main(["failures", str(tmp_path / "nothing")]) == 1
+    assert cli_main(["failures", str(tmp_path / "nothing")]) == 2
     assert "no such directory" in capsys.readouterr().err
 
 

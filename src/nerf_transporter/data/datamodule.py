@@ -320,6 +320,10 @@ class RavensDataModule(pl.LightningDataModule):
         self.save_hyperparameters()
         if n_demos < 1:
             raise ValueError(f"n_demos must be >= 1, got {n_demos}")
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        if n_rotations < 1:
+            raise ValueError(f"n_rotations must be >= 1, got {n_rotations}")
         if test_workers is not None and test_workers < 1:
             raise ValueError(f"test_workers must be >= 1, got {test_workers}")
         n_views = len(g.view_grid(setting))

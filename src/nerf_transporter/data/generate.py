@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from nerf_transporter import geometry as g
+from nerf_transporter.atomic import check_writable
 from nerf_transporter.console import HelpFormatter, progress_bar
 from nerf_transporter.data import episode as ep
 from nerf_transporter.data.labels import heightmap_labels, mira_labels
@@ -348,18 +349,25 @@ def generate_dataset(
 
     Data of another configuration or world is refused (ep.check_dataset_config); with `regenerate`
     the dataset's episodes, failed seeds and dataset.json are deleted first. Gives up with
-    RuntimeError after `max_failures_in_a_row` failed rollouts in a row."""
+    RuntimeError after `max_failures_in_a_row` failed rollouts in a row. Where episodes are to be
+    written, a dataset folder that cannot be written is refused before the first rollout
+    (`atomic.UnwritableError`)."""
     if episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {episodes}")
+    if workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {workers}")
     dataset_dir = Path(data_dir) / config.dataset_name()
+    target = shard_target(episodes, shard)
+    done, failed = dataset_status(dataset_dir, shard)
+    if regenerate or len(done) < target:  # a complete dataset is only read
+        check_writable("--data-dir", dataset_dir)
     if regenerate:
         ep.remove_dataset(dataset_dir)
-    done, failed = dataset_status(dataset_dir, shard)
+        done, failed = dataset_status(dataset_dir, shard)
     ep.ensure_dataset_config(
         dataset_dir, config.description(), config.command(episodes, data_dir, regenerate=True)
     )
     ep.remove_stale_temp_dirs(dataset_dir)
-    target = shard_target(episodes, shard)
     todo = _pending_indices(config.split, shard, done, failed)
 
     bar = progress_bar(

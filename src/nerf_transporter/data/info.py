@@ -21,7 +21,8 @@ def _mean(values: list[float]) -> float | None:
 
 
 def dataset_summary(dataset_dir: str | Path, verify: bool = False) -> dict[str, Any]:
-    """Episode count, seeds, failed seeds, imagery kind and quality; with `verify`, the problems."""
+    """Episode count, seeds, failed seeds, imagery kind and quality; with `verify`, the problems
+    (an unreadable meta.json or failed-seed record is one also without it)."""
     dataset_dir = Path(dataset_dir)
     config = ep.read_dataset_config(dataset_dir)
     if config is None:
@@ -43,6 +44,11 @@ def dataset_summary(dataset_dir: str | Path, verify: bool = False) -> dict[str, 
         for name, value in ((meta.get("imagery") or {}).get("quality") or {}).items():
             qualities.setdefault(name, []).append(value)
     quality = {name: _mean(values) for name, values in qualities.items()} or None
+    try:
+        failed = ep.failed_seeds(dataset_dir)
+    except ep.CorruptEpisodeError as error:  # a corrupt failed-seed record
+        problems.append(str(error))
+        failed = {}
     return {
         "dataset": str(dataset_dir),
         "task": config.get("task"),
@@ -52,9 +58,7 @@ def dataset_summary(dataset_dir: str | Path, verify: bool = False) -> dict[str, 
         "pixel_size": config.get("pixel_size"),
         "episodes": len(refs),
         "seeds": [ref.seed for ref in refs],
-        "failed_seeds": {
-            str(seed): reason for seed, reason in sorted(ep.failed_seeds(dataset_dir).items())
-        },
+        "failed_seeds": {str(seed): reason for seed, reason in sorted(failed.items())},
         "imagery_quality": quality,
         "verified": (not problems) if verify else None,
         "problems": problems,

@@ -79,6 +79,9 @@ class SceneSpec:
                 f"{self.pixel_size}"
             )
         object.__setattr__(self, "nerf_image_size", tuple(int(v) for v in self.nerf_image_size))
+        if len(self.nerf_image_size) != 2 or min(self.nerf_image_size) < 1:
+            size = "x".join(map(str, self.nerf_image_size))
+            raise ValueError(f"--nerf-image-size must be ROWSxCOLS, each >= 1, got {size}")
         object.__setattr__(self, "imagery_options", dict(self.imagery_options))
         if self.imagery == "nerf":
             self.imagery_config()  # validates the options

@@ -8,7 +8,9 @@ checkpoint, chosen among the evaluations without erred episodes. The episodes ru
 processes (default: one per available core). Models and DataModules are rebuilt
 from the hyper-parameters inside the checkpoints (LightningCLI stores the method's class path
 there), and checkpoints are read with `weights_only=True`; an unreadable checkpoint is skipped with
-a warning.
+a warning. A checkpoint whose hyper-parameters name any other class than this package's methods and
+DataModule is refused before anything is imported (`check_checkpoint_classes`), as is a run folder
+whose `evaluation/` (or `--video` folder) cannot be written, before the first episode.
 """
 
 from __future__ import annotations
@@ -19,12 +21,13 @@ import logging
 import math
 import sys
 import time
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from nerf_transporter.atomic import write_new_json
+from nerf_transporter.atomic import check_writable, write_new_json
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.data.observation import IMAGERY_KINDS
 from nerf_transporter.evaluation.report import cell
@@ -36,6 +39,77 @@ from nerf_transporter.parallel import share_cores
 from nerf_transporter.splits import split_seed
 
 log = logging.getLogger(__name__)
+
+
+# the hyper-parameters a checkpoint may hold: the method's (what `lightning --ckpt_path` reads) and
+# the DataModule's
+HYPER_PARAMETER_KEYS = ("hyper_parameters", "datamodule_hyper_parameters")
+# the instantiator LightningCLI stores beside a class path (the only one a checkpoint may name)
+LIGHTNING_INSTANTIATOR = "lightning.pytorch.cli.instantiate_module"
+
+
+class UntrustedCheckpointError(ValueError):
+    """A checkpoint whose hyper-parameters name code other than this package's methods and
+    DataModule: building what they name would import that code."""
+
+
+def trusted_class_paths() -> frozenset[str]:
+    """The class paths a checkpoint may name: this package's methods and its DataModule, by their
+    module, by the package that exports them and by their bare name (how LightningCLI and a config
+    write them)."""
+    from nerf_transporter.data.datamodule import RavensDataModule
+    from nerf_transporter.methods import METHODS
+
+    paths = {f"nerf_transporter.methods.{cls.__name__}" for cls in METHODS.values()}
+    for cls in (*METHODS.values(), RavensDataModule):
+        paths |= {cls.__name__, f"{cls.__module__}.{cls.__qualname__}"}
+    return frozenset(paths)
+
+
+def _named_classes(value: Any, where: str) -> Iterator[tuple[str, Any]]:
+    """(where, value) of every class path and instantiator in nested hyper-parameters."""
+    if isinstance(value, Mapping):
+        for key, item in value.items():
+            place = f"{where}.{key}"
+            if key in ("_class_path", "class_path", "_instantiator"):
+                yield place, item
+            else:
+                yield from _named_classes(item, place)
+    elif isinstance(value, list | tuple):
+        for index, item in enumerate(value):
+            yield from _named_classes(item, f"{where}[{index}]")
+
+
+def check_checkpoint_classes(
+    path: str | Path, keys: tuple[str, ...] = HYPER_PARAMETER_KEYS
+) -> None:
+    """UntrustedCheckpointError where the hyper-parameters (`keys`) of the checkpoint at `path`
+    name a class other than this package's methods and DataModule, or an instantiator other than
+    LightningCLI's. Only strings are compared: nothing the checkpoint names is imported. The file
+    is read with `weights_only=True` (a checkpoint holding other objects raises
+    `pickle.UnpicklingError`)."""
+    checkpoint = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+    trusted = trusted_class_paths()
+    for key in keys:
+        hyper_parameters = checkpoint.get(key) if isinstance(checkpoint, Mapping) else None
+        if hyper_parameters is not None and not isinstance(hyper_parameters, Mapping):
+            raise UntrustedCheckpointError(
+                f"{path}: {key} is {type(hyper_parameters).__name__}, not the hyper-parameters "
+                "of a lightning fit run"
+            )
+        for where, named in _named_classes(hyper_parameters or {}, key):
+            allowed = {LIGHTNING_INSTANTIATOR} if where.endswith("._instantiator") else trusted
+            if not isinstance(named, str) or named not in allowed:
+                raise UntrustedCheckpointError(
+                    f"{path} names {named!r} in {where}, not one of this package's methods or "
+                    "its DataModule: refused, nothing it names was imported (only checkpoints of "
+                    "`lightning fit` runs of this package load)"
+                )
+
+
+class NoLoadableCheckpointError(FileNotFoundError):
+    """None of the checkpoints to evaluate could be loaded: nothing was evaluated (as where a run
+    holds no readable checkpoint file)."""
 
 
 def checkpoint_steps(run_dir: Path) -> list[tuple[int, Path]]:
@@ -151,10 +225,12 @@ def load_checkpoint(
 ) -> tuple[torch.nn.Module, object]:
     """(method, datamodule) rebuilt from a checkpoint written by a LightningCLI run, with the
     method's test-time options (`Method.test_time_options`, e.g. mira's `view_choice`) where given
-    instead of the checkpoint's; ValueError for an option the method does not take."""
+    instead of the checkpoint's; ValueError for an option the method does not take. A checkpoint
+    that names other classes is refused first (`check_checkpoint_classes`)."""
     from nerf_transporter.data.datamodule import RavensDataModule
     from nerf_transporter.methods import METHODS
 
+    check_checkpoint_classes(path)
     hparams = torch.load(path, map_location="cpu", weights_only=True).get("hyper_parameters", {})
     class_name = str(hparams.get("_class_path", "")).rsplit(".", 1)[-1]
     classes = {cls.__name__: cls for cls in METHODS.values()}
@@ -195,21 +271,32 @@ def evaluate_checkpoints(
     """Evaluate every checkpoint of a run (or the `only` ones) on the first `episodes` seeds of
     `split`, in `workers` worker processes (default: one per available core; 1: in this process);
     with `video_dir`, every episode is recorded under `<video_dir>/<checkpoint>/`; `view_choice`
-    (mira) tests under that view-choice rule instead of the checkpoint's."""
+    (mira) tests under that view-choice rule instead of the checkpoint's.
+
+    Before the first episode: a checkpoint naming other classes than this package's is refused
+    (UntrustedCheckpointError), and the records' folder and `video_dir` must be writable
+    (`atomic.UnwritableError`). A checkpoint that cannot be loaded is skipped with a warning;
+    NoLoadableCheckpointError, naming each with its reason, where none could be."""
     checkpoints = checkpoint_steps(run_dir) if only is None else chosen_checkpoints(run_dir, only)
     if not checkpoints:
         raise FileNotFoundError(f"no readable .ckpt files under {run_dir}")
+    for _, path in checkpoints:
+        check_checkpoint_classes(path)
+    check_writable("the evaluation records' folder", run_dir / "evaluation")
+    if video_dir is not None:
+        check_writable("--video", video_dir)
     device = device or torch.device("cuda" if torch.cuda.is_available() else "cpu")
     seeds = [split_seed(split, index) for index in range(episodes)]
     workers, threads = share_cores(len(seeds), workers)
     options = {} if view_choice is None else {"view_choice": view_choice}
-    records, evaluator = [], None
+    records, evaluator, unloadable = [], None, []
     try:
         for step, path in checkpoints:
             try:
                 model, datamodule = load_checkpoint(path, device, **options)
             except Exception as error:  # a checkpoint of another program, or damaged past its step
                 log.warning("skipping checkpoint %s that cannot be loaded: %s", path, error)
+                unloadable.append(f"{path} ({error})")
                 continue
             spec = EvaluationSpec.from_datamodule(
                 datamodule,
@@ -250,6 +337,11 @@ def evaluate_checkpoints(
     finally:
         if evaluator is not None:
             evaluator.close()
+    if not records:
+        raise NoLoadableCheckpointError(
+            f"none of the {len(unloadable)} checkpoints of {run_dir} could be loaded, nothing was "
+            "evaluated: " + "; ".join(unloadable)
+        )
     return records
 
 
@@ -325,9 +417,9 @@ def main(argv: list[str] | None = None) -> int:
             only=args.checkpoint,
             view_choice=args.view_choice,
         )
-    except (FileNotFoundError, ValueError) as error:
+    except (FileNotFoundError, ValueError) as error:  # no checkpoint it can evaluate or write
         print(f"nerf-transporter evaluate-checkpoints: {error}", file=sys.stderr)
-        return 1
+        return 2
     best = best_record(records)
     searched = any("view_search" in record for record in records)
     view_header = " | view search: true view / within one step / median rank" if searched else ""

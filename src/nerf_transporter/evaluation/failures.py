@@ -34,6 +34,8 @@ refused, since its seeds would build other scenes here.
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import statistics
 import sys
 from collections import Counter
@@ -45,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from nerf_transporter import geometry
-from nerf_transporter.atomic import write_json
+from nerf_transporter.atomic import check_writable, write_json
 from nerf_transporter.console import HelpFormatter, progress_bar
 from nerf_transporter.evaluation.cells import find_records, load_record, row_key, trained_setting
 from nerf_transporter.evaluation.metrics import paired_comparison
@@ -149,6 +151,42 @@ def diagnose_episode(env: RavensEnv, episode: Mapping[str, Any]) -> dict[str, An
         "target_tilt_deg": target_tilt,
         "ended_position_error": (episode.get("pose_error") or {}).get("position_error"),
     }
+
+
+def _is_pose(values: Any) -> bool:
+    """Whether `values` is a recorded pose: 7 finite numbers (position, quaternion)."""
+    return (
+        isinstance(values, list)
+        and len(values) == 7
+        and all(
+            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+            for v in values
+        )
+    )
+
+
+def check_replayable(record: Mapping[str, Any]) -> None:
+    """FailureAnalysisError naming the file and the episode where an episode cannot be classed: a
+    failure (neither success nor error) without its reason (`failure`), or an action that is not
+    {"pick": pose, "place": pose}, each pose 7 finite numbers (position, quaternion)."""
+    for index, episode in enumerate(record.get("episode_results") or []):
+        where = f"{record.get('path')}: episode_results[{index}] (seed {episode.get('seed')})"
+        failed = episode.get("error") is None and not episode.get("success")
+        if failed and not isinstance(episode.get("failure"), str):
+            raise FailureAnalysisError(
+                f"{where} failed without its reason: failure is "
+                f"{json.dumps(episode.get('failure'))}, not a string"
+            )
+        action = episode.get("action")
+        if action and not (
+            isinstance(action, Mapping)
+            and set(action) == {"pick", "place"}
+            and all(_is_pose(pose) for pose in action.values())
+        ):
+            raise FailureAnalysisError(
+                f'{where}: action is {json.dumps(action)[:60]}, not {{"pick": pose, '
+                '"place": pose}, each pose 7 numbers (position, quaternion)'
+            )
 
 
 def diagnose_cell(record: Mapping[str, Any], progress: bool = True) -> list[dict[str, Any]]:
@@ -435,19 +473,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
     try:
+        if args.json:
+            check_writable("--json", args.json, file=True)
         cells, tests = load_records([Path(path) for path in args.cells])
         records = cells + tests
         if not records:
             raise FailureAnalysisError(
                 f"no run-cell cells in {' '.join(args.cells)}; run `nerf-transporter run-cell` first"
             )
+        for record in records:  # every one before the first replay
+            check_replayable(record)
         analysed = []
         for record in records:
             diagnoses = diagnose_cell(record, progress=not args.no_progress)
             analysed.append((summary(record, diagnoses), diagnoses))
-    except (OSError, ValueError) as error:
+    except (OSError, ValueError) as error:  # cells it cannot read or replay, --json unwritable
         print(f"nerf-transporter failures: {error}", file=sys.stderr)
-        return 1
+        return 2
     summaries = [entry for entry, _ in analysed]
     tables = [summary_table(summaries), tilt_table(summaries)]
     if views := view_search_table(summaries):

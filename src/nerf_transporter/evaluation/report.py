@@ -37,7 +37,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from nerf_transporter.atomic import write_text
+from nerf_transporter.atomic import check_writable, write_text
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.drawing import bar_chart, line_chart
 from nerf_transporter.evaluation.cells import (
@@ -612,6 +612,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     try:
+        if args.plot:
+            check_writable("--plot", args.plot, file=True)
         found = find_records([Path(root) for root in args.roots])
         records = found.records
         rewrites = _rewrites(args, records, found.archives)

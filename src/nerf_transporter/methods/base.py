@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 import lightning as L
@@ -47,7 +48,7 @@ class Method(L.LightningModule):
 
     def __init__(self, lr: float = 1e-4, log_images_every_n_steps: int = 250) -> None:
         super().__init__()
-        if lr <= 0:
+        if not (math.isfinite(lr) and lr > 0):
             raise ValueError(f"lr must be positive, got {lr}")
         self.lr = lr
         self.log_images_every_n_steps = log_images_every_n_steps
@@ -196,6 +197,10 @@ class ImageMethod(Method):
         cuda_graphs: bool = False,
         **kwargs: Any,
     ) -> None:
+        if not (math.isfinite(pixel_size) and pixel_size > 0):
+            raise ValueError(f"pixel_size must be > 0 (metres per pixel), got {pixel_size}")
+        if n_rotations < 1:
+            raise ValueError(f"n_rotations must be >= 1, got {n_rotations}")
         super().__init__(**kwargs)
         self.pixel_size = pixel_size
         self.n_rotations = n_rotations

@@ -52,6 +52,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.episodes < 1:
         print("oracle: --episodes must be at least 1", file=sys.stderr)
         return 2
+    if args.seed < 0:
+        print(f"oracle: --seed must be >= 0 (a scene's seed), got {args.seed}", file=sys.stderr)
+        return 2
     if args.video is not None and args.video.suffix not in VIDEO_SUFFIXES:
         print(f"oracle: --video must end with {' or '.join(VIDEO_SUFFIXES)}", file=sys.stderr)
         return 2
