@@ -112,10 +112,17 @@ def test_export_refuses_the_results_of_another_checkpoint(tmp_path, monkeypatch)
     checkpoint = trained_run(tmp_path)
     results = results_of(checkpoint, [1])
     other = checkpoint.with_name("step9.ckpt")
-    other.write_bytes(checkpoint.read_bytes())
-    with pytest.raises(ValueError, match="not .*step9.ckpt"):
+    state = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    for tensor in state["state_dict"].values():
+        tensor.add_(1.0)
+    torch.save(state, other)
+    with pytest.raises(ValueError, match="tests another checkpoint than .*step9.ckpt"):
         export_pretrained(other, results, tmp_path / "out", config="c", commit="c")
     assert not (tmp_path / "out").exists()
+    copy = checkpoint.with_name("copy.ckpt")  # the tested checkpoint by content, under a new name
+    copy.write_bytes(checkpoint.read_bytes())
+    entry = export_pretrained(copy, results, tmp_path / "out", config="c", commit="c")
+    assert entry["source"] == "copy.ckpt"
 
 
 def test_try_names_what_is_shipped_for_an_unknown_policy(capsys):

@@ -175,7 +175,7 @@ PROTOCOL_OPTIONAL = {
 }
 FIT_FIELDS = {"protocol_id": "str", "run_dir": "str", "checkpoint": "str"}
 TEST_RECORD_FIELDS = {"split": "str"}
-TEST_RECORD_OPTIONAL = {"checkpoint": "str?", "global_step": "int?"}
+TEST_RECORD_OPTIONAL = {"checkpoint": "str?", "checkpoint_sha256": "str?", "global_step": "int?"}
 EPISODE_FIELDS = {"seed": "int", "success": "bool"}
 EPISODE_OPTIONAL = {"outcome": "str", "error": "str?", "failure": "str?", "strict_success": "bool?"}
 

@@ -26,6 +26,7 @@ of that for no gain.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import sys
@@ -83,7 +84,9 @@ def results_record(
 
     "setting" is the setting the episodes ran in, "trained_setting" the one the policy was trained
     in (its DataModule's `setting`); "imagery" is how the views were built for an imagery method
-    (nerf, oracle), None for the methods that see the RGB-D heightmap or the state.
+    (nerf, oracle), None for the methods that see the RGB-D heightmap or the state;
+    "checkpoint_sha256" the content hash of the checkpoint file tested (None without a local
+    file), by which `export-pretrained` knows it.
     """
     results = sorted(results, key=lambda result: result["seed"])
     return {
@@ -94,6 +97,9 @@ def results_record(
         "split": split,
         "imagery": spec.imagery if getattr(method, "input_kind", None) == "imagery" else None,
         "checkpoint": checkpoint,
+        "checkpoint_sha256": sha256(checkpoint)
+        if checkpoint and Path(checkpoint).is_file()
+        else None,
         "global_step": global_step,
         "world": world_fingerprint(),
         **summarize(results),
@@ -101,6 +107,15 @@ def results_record(
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "episode_results": results,
     }
+
+
+def sha256(path: str | os.PathLike) -> str:
+    """The SHA-256 of a file's content, in hex."""
+    digest = hashlib.sha256()
+    with Path(path).open("rb") as file:
+        for block in iter(lambda: file.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def checkpoint_step(path: str | os.PathLike) -> int:
