@@ -11,9 +11,10 @@ import pytest
 import torch
 
 from nerf_transporter.cli import main as cli_main
+from nerf_transporter.data.episode import file_sha256
 from nerf_transporter.evaluation import pretrained as pretrained_module
 from nerf_transporter.evaluation.metrics import summarize
-from nerf_transporter.evaluation.pretrained import load_manifest, sha256
+from nerf_transporter.evaluation.pretrained import load_manifest
 from tests.evaluation.test_pretrained import results_of, trained_run
 
 PACKAGE = Path("src/nerf_transporter/pretrained")
@@ -83,7 +84,7 @@ def test_export_ships_into_the_package_folder_of_the_checkout_it_runs_in(checkou
         ("block-insertion", "gt_state_mlp"),
         ("stacking-kits", "mira"),
     ]
-    assert entries[0]["sha256"] == sha256(shipped) and entries[0]["test"]["seeds"] == [1, 3]
+    assert entries[0]["sha256"] == file_sha256(shipped) and entries[0]["test"]["seeds"] == [1, 3]
     state = torch.load(shipped, map_location="cpu", weights_only=True)
     assert state["provenance"]["commit"] == "abc1234"
     assert not any(pretrained_module.PRETRAINED_DIR.iterdir())  # the installed copy: untouched

@@ -89,9 +89,10 @@ def episode_dirname(index: int, seed: int) -> str:
     return f"{index:06d}-{seed}"
 
 
-def _sha256(path: Path) -> str:
+def file_sha256(path: str | os.PathLike) -> str:
+    """The SHA-256 of a file's content, in hex."""
     digest = hashlib.sha256()
-    with path.open("rb") as handle:
+    with Path(path).open("rb") as handle:
         for block in iter(lambda: handle.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
@@ -135,7 +136,7 @@ def write_episode(
                     raise TypeError(f"{stem}.npz: array {key!r} has dtype object (no pickle)")
             path = temp / f"{stem}.npz"
             np.savez_compressed(path, **{k: np.asarray(v) for k, v in content.items()})
-            files[path.name] = {"sha256": _sha256(path), "bytes": path.stat().st_size}
+            files[path.name] = {"sha256": file_sha256(path), "bytes": path.stat().st_size}
         full_meta = {**meta, "format": FORMAT_VERSION, "index": index, "seed": seed, "files": files}
         full_meta = json.loads(json.dumps(full_meta))  # the checksum is of what is read back
         full_meta[META_CHECKSUM] = meta_checksum(full_meta)

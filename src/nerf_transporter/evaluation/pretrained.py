@@ -39,6 +39,7 @@ import yaml
 
 from nerf_transporter.atomic import unwritable_reason, write_file, write_json
 from nerf_transporter.console import HelpFormatter
+from nerf_transporter.data.episode import file_sha256
 from nerf_transporter.evaluation.cells import load_record
 from nerf_transporter.evaluation.checkpoints import (
     config_callbacks,
@@ -52,7 +53,7 @@ from nerf_transporter.evaluation.rollout import (
     EvaluationSpec,
     Evaluator,
 )
-from nerf_transporter.evaluation.testing import checkpoint_step, results_record, sha256
+from nerf_transporter.evaluation.testing import checkpoint_step, results_record
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.pretrained import PRETRAINED_DIR
 from nerf_transporter.sim.fingerprint import world_fingerprint
@@ -176,7 +177,7 @@ def tested_checkpoint_hash(record: dict[str, Any]) -> str:
             "checkpoint_sha256, so the checkpoint it tested cannot be known: run export-pretrained "
             "from the folder it was tested in"
         )
-    return sha256(named)
+    return file_sha256(named)
 
 
 def check_test_of(record: dict[str, Any], checkpoint: Path) -> None:
@@ -188,7 +189,7 @@ def check_test_of(record: dict[str, Any], checkpoint: Path) -> None:
             f"{where} is not an error-free test with its episodes ({record['episodes']} episodes, "
             f"{record['errors']} erred)"
         )
-    if tested_checkpoint_hash(record) != sha256(checkpoint):
+    if tested_checkpoint_hash(record) != file_sha256(checkpoint):
         raise ValueError(
             f"{where} tests another checkpoint than {checkpoint} (their contents differ); export "
             "the checkpoint together with the record of its own test"
@@ -268,7 +269,7 @@ def export_pretrained(
     torch.load(buffer, map_location="cpu", weights_only=True)  # ships only plain data
     write_file(out_folder / name, lambda file: file.write(buffer.getvalue()))
     entry = {"file": name, "bytes": (out_folder / name).stat().st_size}
-    entry |= {"sha256": sha256(out_folder / name)} | provenance
+    entry |= {"sha256": file_sha256(out_folder / name)} | provenance
     entries = [e for e in entries if (e["task"], e["method"]) != (entry["task"], entry["method"])]
     entries = sorted([*entries, entry], key=lambda e: (e["task"], e["method"]))
     write_json(out_folder / MANIFEST, {"policies": entries})

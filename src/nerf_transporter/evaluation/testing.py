@@ -26,7 +26,6 @@ of that for no gain.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import sys
@@ -40,6 +39,7 @@ from lightning.pytorch import LightningModule, Trainer
 from lightning.pytorch.callbacks import Callback
 
 from nerf_transporter.atomic import write_new_json
+from nerf_transporter.data.episode import file_sha256
 from nerf_transporter.evaluation.metrics import summarize
 from nerf_transporter.evaluation.report import cell
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
@@ -97,7 +97,7 @@ def results_record(
         "split": split,
         "imagery": spec.imagery if getattr(method, "input_kind", None) == "imagery" else None,
         "checkpoint": checkpoint,
-        "checkpoint_sha256": sha256(checkpoint)
+        "checkpoint_sha256": file_sha256(checkpoint)
         if checkpoint and Path(checkpoint).is_file()
         else None,
         "global_step": global_step,
@@ -107,15 +107,6 @@ def results_record(
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "episode_results": results,
     }
-
-
-def sha256(path: str | os.PathLike) -> str:
-    """The SHA-256 of a file's content, in hex."""
-    digest = hashlib.sha256()
-    with Path(path).open("rb") as file:
-        for block in iter(lambda: file.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def checkpoint_step(path: str | os.PathLike) -> int:
