@@ -521,15 +521,23 @@ def lightning_main(args: list[str] | None = None) -> int:
 
     Exits 1 when a closed-loop test had erred episodes (their seeds are listed); 2 when
     `--ckpt_path last` finds no run to resume, an option cannot run (`RunArgumentError`), a folder
-    to write (the data's) cannot be written or a checkpoint holds more than weights. A failed command removes the run folder it claimed
-    where that holds no checkpoint and no results file (`removed_if_unused`)."""
+    to write (the data's) cannot be written, a checkpoint holds more than weights or an episode of
+    the data is damaged, edited or of another configuration. A failed command removes the run
+    folder it claimed where that holds no checkpoint and no results file (`removed_if_unused`)."""
+    from nerf_transporter.data.episode import CorruptEpisodeError, DatasetConfigMismatchError
     from nerf_transporter.evaluation.testing import erred_seeds_line
 
     claimed: list[Path] = []
     try:
         with removed_if_unused(claimed):
             cli = build_cli(args, claimed=claimed)
-    except (NoRunToResumeError, RunArgumentError, UnwritableError) as error:
+    except (
+        NoRunToResumeError,
+        RunArgumentError,
+        UnwritableError,
+        CorruptEpisodeError,
+        DatasetConfigMismatchError,
+    ) as error:
         print(f"lightning: {error}", file=sys.stderr)
         return 2
     except pickle.UnpicklingError as error:

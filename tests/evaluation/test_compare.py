@@ -60,12 +60,21 @@ def test_cells_are_paired_on_common_seeds_without_erred_episodes(tmp_path, capsy
     other = write_cell(
         tmp_path, "other", {1: True, 3: False, 5: False, 7: False, 9: None, 13: True}
     )
-    assert main([str(first), str(other)]) == 0
-    rows = [line.strip("| ").split(" | ") for line in capsys.readouterr().out.splitlines()[2:]]
+    assert main([str(first), str(other)]) == 2  # tested on other seeds: refused unless asked
+    err = capsys.readouterr().err
+    assert f"{other} was tested on 6 seeds, {first} on 6, 5 of them common" in err
+    assert "--allow-unequal-seeds" in err
+    assert main([str(first), str(other), "--allow-unequal-seeds"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    rows = [line.strip("| ").split(" | ") for line in lines[2:4]]
     assert rows[0][5:] == ["-"] * 6
     # common seeds without errors: 1, 3, 5, 7 -> both 1, first only 2, other only 0, neither 1
     assert rows[1][5:10] == ["4", "1", "2", "0", "1"]
     assert float(rows[1][10]) == pytest.approx(0.5)
+    assert lines[5] == (
+        f"{other}: paired on 4 seeds: the 5 both were tested on (this one 6, the first 6), less 1 "
+        "that erred in either"
+    )
 
 
 def test_cells_trained_in_two_settings_are_paired_on_the_seeds_they_were_tested_on(
@@ -76,7 +85,7 @@ def test_cells_trained_in_two_settings_are_paired_on_the_seeds_they_were_tested_
     outcomes = {1: True, 3: True, 5: True}
     challenging = write_cell(tmp_path, "challenging", outcomes, setting="challenging")
     assert main([str(normal), str(challenging)]) == 0
-    rows = [line.strip("| ").split(" | ") for line in capsys.readouterr().out.splitlines()[2:]]
+    rows = [line.strip("| ").split(" | ") for line in capsys.readouterr().out.splitlines()[2:4]]
     assert [row[1] for row in rows] == ["Normal", "Challenging"]
     assert rows[1][5:10] == ["3", "1", "0", "2", "0"]
     normal_tested_normal = write_cell(tmp_path, "normal-normal", outcomes)
@@ -109,8 +118,8 @@ def test_a_test_record_of_evaluate_checkpoints_is_compared_with_a_cell(tmp_path,
     record.pop("protocol"), record.pop("machine")
     tested = tmp_path / "step004000-test-normal.json"
     tested.write_text(json.dumps(record))
-    assert main([str(cell), str(tested)]) == 0
-    rows = [line.strip("| ").split(" | ") for line in capsys.readouterr().out.splitlines()[2:]]
+    assert main([str(cell), str(tested), "--allow-unequal-seeds"]) == 0
+    rows = [line.strip("| ").split(" | ") for line in capsys.readouterr().out.splitlines()[2:4]]
     assert rows[1][1] == "Normal"
     assert rows[1][3:10] == ["4000", "not recorded", "2", "1", "0", "1", "0"]
 

@@ -11,6 +11,7 @@ import yaml
 from nerf_transporter import geometry as g
 from nerf_transporter.atomic import write_json
 from nerf_transporter.cli import main as cli_main
+from nerf_transporter.data.episode import file_sha256
 from nerf_transporter.evaluation import pretrained as pretrained_module
 from nerf_transporter.evaluation.checkpoints import load_checkpoint
 from nerf_transporter.evaluation.pretrained import (
@@ -19,7 +20,6 @@ from nerf_transporter.evaluation.pretrained import (
     export_pretrained,
     load_manifest,
     policy_file_name,
-    sha256,
     shipped_table,
     try_policy,
 )
@@ -88,7 +88,7 @@ def test_export_keeps_weights_and_provenance_and_try_runs_it(tmp_path, monkeypat
     assert state["provenance"]["validation"]["episodes"] == 3
     assert state["provenance"]["test"]["seeds"] == [1]
     assert load_manifest(folder) == [entry]
-    assert entry["sha256"] == sha256(shipped)
+    assert entry["sha256"] == file_sha256(shipped)
     assert entry["test"]["world"] == world_fingerprint()  # trained and tested in this world
 
     record = try_policy(
@@ -112,10 +112,17 @@ def test_export_refuses_the_results_of_another_checkpoint(tmp_path, monkeypatch)
     checkpoint = trained_run(tmp_path)
     results = results_of(checkpoint, [1])
     other = checkpoint.with_name("step9.ckpt")
-    other.write_bytes(checkpoint.read_bytes())
-    with pytest.raises(ValueError, match="not .*step9.ckpt"):
+    state = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    for tensor in state["state_dict"].values():
+        tensor.add_(1.0)
+    torch.save(state, other)
+    with pytest.raises(ValueError, match="tests another checkpoint than .*step9.ckpt"):
         export_pretrained(other, results, tmp_path / "out", config="c", commit="c")
     assert not (tmp_path / "out").exists()
+    copy = checkpoint.with_name("copy.ckpt")  # the tested checkpoint by content, under a new name
+    copy.write_bytes(checkpoint.read_bytes())
+    entry = export_pretrained(copy, results, tmp_path / "out", config="c", commit="c")
+    assert entry["source"] == "copy.ckpt"
 
 
 def test_try_names_what_is_shipped_for_an_unknown_policy(capsys):
@@ -211,7 +218,7 @@ def test_the_quickstart_policies_are_shipped():
 @pytest.mark.parametrize("entry", SHIPPED, ids=lambda e: f"{e['task']}-{e['method']}")
 def test_a_shipped_policy_loads_weights_only_and_acts(entry):
     path = PRETRAINED_DIR / entry["file"]
-    assert sha256(path) == entry["sha256"]
+    assert file_sha256(path) == entry["sha256"]
     assert path.stat().st_size < 8e6  # the table's full-resolution models: 1.9 M float32 weights
     state = torch.load(path, map_location="cpu", weights_only=True)
     assert state["provenance"]["test"]["episodes"] >= 10

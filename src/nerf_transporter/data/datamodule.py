@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -102,6 +103,17 @@ def load_demo(path: Path, input_kind: str, grid: np.ndarray, pixel_size: float) 
         pick=np.concatenate(action["pick"]).astype(np.float32),
         place=np.concatenate(action["place"]).astype(np.float32),
     )
+
+
+@contextmanager
+def regenerate_hint(config: GenerationConfig, count: int, data_dir: Path) -> Iterator[None]:
+    """A damaged episode's error (`ep.CorruptEpisodeError`) ending with the command that
+    generates its dataset afresh."""
+    try:
+        yield
+    except ep.CorruptEpisodeError as error:
+        command = config.command(count, data_dir, regenerate=True)
+        raise ep.CorruptEpisodeError(f"{error}; or regenerate the dataset: {command}") from error
 
 
 class SeededSampler(Sampler):
@@ -425,16 +437,20 @@ class RavensDataModule(pl.LightningDataModule):
             return
         input_kind = self.resolve_input_kind()
         for split, count in self._wanted():
-            generate_dataset(
-                self._config_for(split, count, input_kind),
-                count,
-                self.data_dir,
-                workers=self.generate_workers,
-            )
+            config = self._config_for(split, count, input_kind)
+            with regenerate_hint(config, count, self.data_dir):
+                generate_dataset(config, count, self.data_dir, workers=self.generate_workers)
 
     def load_split(self, split: str, count: int, input_kind: str) -> list[Demo]:
-        """The first `count` episodes of a split, or an error saying how to generate them."""
+        """The first `count` episodes of a split (each file checked against its checksum: see
+        `ep.load_episode`), or an error saying how to generate them."""
         config = self._config_for(split, count, input_kind)
+        with regenerate_hint(config, count, self.data_dir):
+            return self._load_demos(config, split, count, input_kind)
+
+    def _load_demos(
+        self, config: GenerationConfig, split: str, count: int, input_kind: str
+    ) -> list[Demo]:
         dataset_dir = self.data_dir / config.dataset_name()
         ep.check_dataset_config(
             dataset_dir, config.description(), config.command(count, self.data_dir, regenerate=True)

@@ -11,18 +11,20 @@
         imagery.npz           V views: colour uint8, height float16, view angles
 
 Episodes are written into a hidden temporary directory and renamed into place, so a directory with
-a valid name is always complete; meta.json holds checksums so `verify_episode` can name any file
-that was damaged afterwards, meta.json itself included (it holds the oracle action the labels are
-computed from). dataset.json and every episode record the configuration and the world (the
-`nerf_transporter.sim.fingerprint` description of the world, component by component) they were
-generated with, so data of another configuration or of a changed world is refused instead of mixed
-or trained on.
+a valid name is always complete; meta.json holds checksums so that `load_episode` (of the files it
+reads) and `verify_episode` (of all) name any file that was damaged or replaced afterwards (a
+valid npz copied from another episode), meta.json itself included (it holds the oracle action the
+labels are computed from). dataset.json and every episode record the configuration and the world
+(the `nerf_transporter.sim.fingerprint` description of the world, component by component) they
+were generated with, so data of another configuration or of a changed world is refused instead of
+mixed or trained on.
 Everything is JSON or `.npz` read with `allow_pickle=False`.
 """
 
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import re
@@ -88,9 +90,10 @@ def episode_dirname(index: int, seed: int) -> str:
     return f"{index:06d}-{seed}"
 
 
-def _sha256(path: Path) -> str:
+def file_sha256(path: str | os.PathLike) -> str:
+    """The SHA-256 of a file's content, in hex."""
     digest = hashlib.sha256()
-    with path.open("rb") as handle:
+    with Path(path).open("rb") as handle:
         for block in iter(lambda: handle.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
@@ -134,7 +137,7 @@ def write_episode(
                     raise TypeError(f"{stem}.npz: array {key!r} has dtype object (no pickle)")
             path = temp / f"{stem}.npz"
             np.savez_compressed(path, **{k: np.asarray(v) for k, v in content.items()})
-            files[path.name] = {"sha256": _sha256(path), "bytes": path.stat().st_size}
+            files[path.name] = {"sha256": file_sha256(path), "bytes": path.stat().st_size}
         full_meta = {**meta, "format": FORMAT_VERSION, "index": index, "seed": seed, "files": files}
         full_meta = json.loads(json.dumps(full_meta))  # the checksum is of what is read back
         full_meta[META_CHECKSUM] = meta_checksum(full_meta)
@@ -234,15 +237,39 @@ def read_meta(path: str | os.PathLike) -> dict[str, Any]:
         ) from exc
 
 
-def _load_npz(episode_path: Path, file_name: str) -> dict[str, np.ndarray]:
+def _checked_bytes(episode_path: Path, file_name: str, meta: Mapping[str, Any]) -> bytes:
+    """The content of an episode's file, of the size and checksum its meta.json records."""
     path = episode_path / file_name
+    expected = meta.get("files", {})[file_name]
     try:
-        with np.load(path, allow_pickle=False) as npz:
-            return {key: npz[key] for key in npz.files}
+        content = path.read_bytes()
     except FileNotFoundError as exc:
         raise CorruptEpisodeError(
             f"episode {episode_path.name}: {file_name} is missing ({path})"
         ) from exc
+    except OSError as exc:
+        raise CorruptEpisodeError(
+            f"episode {episode_path.name}: {file_name} cannot be read ({exc})"
+        ) from exc
+    if len(content) != expected["bytes"]:
+        raise CorruptEpisodeError(
+            f"episode {episode_path.name}: {file_name} is truncated or altered "
+            f"({len(content)} bytes, expected {expected['bytes']}; {path}); delete "
+            f"{episode_path} and re-run generation"
+        )
+    if hashlib.sha256(content).hexdigest() != expected["sha256"]:
+        raise CorruptEpisodeError(
+            f"episode {episode_path.name}: {file_name} does not match its checksum (not the file "
+            f"the episode was written with; {path}); delete {episode_path} and re-run generation"
+        )
+    return content
+
+
+def _load_npz(episode_path: Path, file_name: str, content: bytes) -> dict[str, np.ndarray]:
+    """The arrays of an episode's npz file, read from its checked `content`."""
+    try:
+        with np.load(io.BytesIO(content), allow_pickle=False) as npz:
+            return {key: npz[key] for key in npz.files}
     except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
         raise CorruptEpisodeError(
             f"episode {episode_path.name}: {file_name} is corrupt or truncated ({exc}); "
@@ -267,7 +294,8 @@ def _check_meta(path: Path, meta: Mapping[str, Any]) -> None:
 
 
 def load_episode(path: str | os.PathLike, files: Iterable[str] | None = None) -> Episode:
-    """Load meta.json (checked) and the npz files named in `files` (stems; all when None)."""
+    """Load meta.json (checked) and the npz files named in `files` (stems; all when None), each
+    checked against the size and checksum meta.json records."""
     path = Path(path)
     meta = read_meta(path)
     _check_meta(path, meta)
@@ -280,7 +308,8 @@ def load_episode(path: str | os.PathLike, files: Iterable[str] | None = None) ->
                 f"episode {path.name}: {stem}.npz is not part of this episode (stored: "
                 f"{', '.join(s + '.npz' for s in stored) or 'none'})"
             )
-        arrays[stem] = _load_npz(path, f"{stem}.npz")
+        name = f"{stem}.npz"
+        arrays[stem] = _load_npz(path, name, _checked_bytes(path, name, meta))
     return Episode(path, meta, arrays)
 
 
@@ -289,19 +318,8 @@ def verify_episode(path: str | os.PathLike) -> None:
     path = Path(path)
     meta = read_meta(path)
     _check_meta(path, meta)
-    for name, expected in meta.get("files", {}).items():
-        file_path = path / name
-        if not file_path.is_file():
-            raise CorruptEpisodeError(f"episode {path.name}: {name} is missing ({file_path})")
-        size = file_path.stat().st_size
-        if size != expected["bytes"]:
-            raise CorruptEpisodeError(
-                f"episode {path.name}: {name} is truncated or altered "
-                f"({size} bytes, expected {expected['bytes']})"
-            )
-        if _sha256(file_path) != expected["sha256"]:
-            raise CorruptEpisodeError(f"episode {path.name}: {name} does not match its checksum")
-        _load_npz(path, name)
+    for name in meta.get("files", {}):
+        _load_npz(path, name, _checked_bytes(path, name, meta))
 
 
 # ---------------------------------------------------------------------------------------------

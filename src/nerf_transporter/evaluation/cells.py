@@ -11,7 +11,11 @@ which must be the cell's. Either file is refused, naming the file
 and the problem, where a field has the wrong type, the counts disagree (successes <= episodes,
 the counts of its episode records, the Wilson interval recomputed; the same for the strict 6-DoF
 count `strict_successes` where present), an outcome is not a real boolean or one of the outcome
-strings, or it was measured in another world than the one expected: this checkout's
+strings, a seed repeats or is no test seed (odd, below the validation seeds: `splits.py`) or the
+seeds are not its `test_seeds`, its confidence is not the 95% the tables state, a validation
+round's success rate is no rate of the protocol's episodes, it names a task, setting, method or
+imagery this package does not have, a number is beyond 2^53 or the JSON nests too deeply to
+read, or it was measured in another world than the one expected: this checkout's
 (`sim/fingerprint.py`), or, for a file under `<results>/archive/world-<fingerprint>/` (the cells
 of an earlier world, kept with the layout of `results/`), that fingerprint.
 
@@ -28,21 +32,28 @@ import hashlib
 import json
 import math
 import re
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
-from nerf_transporter.evaluation.metrics import wilson_interval
+from nerf_transporter.data.observation import IMAGERY_KINDS
+from nerf_transporter.evaluation.metrics import CONFIDENCE, wilson_interval
 from nerf_transporter.evaluation.view_search import VIEW_SEARCH_FIGURES
 from nerf_transporter.sim.fingerprint import components_read, same_world, world_fingerprint
+from nerf_transporter.sim.tasks import SETTINGS, TASKS
+from nerf_transporter.splits import VALIDATION_OFFSET, split_of_seed
 
 TEST_RECORD_GLOB = "results*.json"  # lightning test's records, one per tested checkpoint
 ARCHIVE = "archive"  # <results>/archive/world-<fingerprint>/: the cells of an earlier world
 ARCHIVED_WORLD = re.compile(r"world-([0-9a-f]{16})")
 OUTCOMES = ("success", "failure", "error")
 TOLERANCE = 1e-9  # how far a stored interval may lie from the one recomputed from its counts
+LARGEST_INT = 2**53  # the largest count or seed a record may hold (beyond it no float is exact)
+# the methods' names (`methods.METHODS`, which imports Lightning: too slow for `report`)
+METHOD_NAMES = ("mira", "transporter_se2", "transporter_se3", "form2fit", "gt_state_mlp")
 
 
 class CellFileError(ValueError):
@@ -96,13 +107,18 @@ def fit_protocol(protocol: dict[str, Any]) -> dict[str, Any]:
     return fit | {"setting": protocol["trained_setting"]}
 
 
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and abs(value) <= LARGEST_INT
+
+
+def _is_number(value: Any) -> bool:
+    return _is_int(value) or (isinstance(value, float) and math.isfinite(value))
+
+
 # a field's kind -> (test, what it is called); a kind ending in "?" also takes null
 KINDS: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "int": (lambda v: isinstance(v, int) and not isinstance(v, bool), "an integer"),
-    "number": (
-        lambda v: isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v),
-        "a finite number",
-    ),
+    "int": (_is_int, "an integer of at most 2^53"),
+    "number": (_is_number, "a finite number"),
     "bool": (lambda v: isinstance(v, bool), "true or false"),
     "str": (lambda v: isinstance(v, str), "a string"),
     "list": (lambda v: isinstance(v, list), "a list"),
@@ -160,7 +176,7 @@ PROTOCOL_OPTIONAL = {
 }
 FIT_FIELDS = {"protocol_id": "str", "run_dir": "str", "checkpoint": "str"}
 TEST_RECORD_FIELDS = {"split": "str"}
-TEST_RECORD_OPTIONAL = {"checkpoint": "str?", "global_step": "int?"}
+TEST_RECORD_OPTIONAL = {"checkpoint": "str?", "checkpoint_sha256": "str?", "global_step": "int?"}
 EPISODE_FIELDS = {"seed": "int", "success": "bool"}
 EPISODE_OPTIONAL = {"outcome": "str", "error": "str?", "failure": "str?", "strict_success": "bool?"}
 
@@ -187,9 +203,8 @@ def _check_interval(
     where: str, prefix: str, successes: int, episodes: int, record: dict[str, Any]
 ) -> None:
     """CellFileError where `<prefix>ci_low`/`<prefix>ci_high` are not the Wilson interval of the
-    counts at the record's confidence."""
-    confidence = record.get("confidence", 0.95)
-    low, high = wilson_interval(successes, episodes, confidence)
+    counts."""
+    low, high = wilson_interval(successes, episodes)
     stored = record.get(f"{prefix}ci_low"), record.get(f"{prefix}ci_high")
     if not all(KINDS["number"][0](value) for value in stored) or not (
         math.isclose(stored[0], low, abs_tol=TOLERANCE)
@@ -197,7 +212,7 @@ def _check_interval(
     ):
         raise CellFileError(
             f"{where}: {prefix}ci_low-{prefix}ci_high {stored[0]}-{stored[1]} is not the "
-            f"{confidence:.0%} Wilson interval of {successes} of {episodes} ({low:.4f}-{high:.4f})"
+            f"{CONFIDENCE:.0%} Wilson interval of {successes} of {episodes} ({low:.4f}-{high:.4f})"
         )
 
 
@@ -218,8 +233,11 @@ def _check_counts(record: dict[str, Any], where: str) -> None:
             f"{where}: {successes} successes of {episodes} episodes ({errors} erred): counts lie "
             "in 0..episodes"
         )
-    if not 0 < record.get("confidence", 0.95) < 1:
-        raise CellFileError(f"{where}: confidence {record['confidence']} is not in (0, 1)")
+    if record.get("confidence", CONFIDENCE) != CONFIDENCE:
+        raise CellFileError(
+            f"{where}: confidence {record['confidence']} is not {CONFIDENCE}, the confidence of "
+            f"every interval the tables state ({CONFIDENCE:.0%} Wilson)"
+        )
     _check_interval(where, "", successes, episodes, record)
     if "success_rate" in record:
         _check_rate(where, "success_rate", record["success_rate"], successes, episodes)
@@ -241,9 +259,46 @@ def _check_counts(record: dict[str, Any], where: str) -> None:
             _check_rate(where, "strict_success_rate", rate, strict, episodes)
 
 
+def _listed(seeds: list[str]) -> str:
+    """The first few of `seeds`, comma-separated."""
+    return ", ".join(seeds[:5]) + (f" and {len(seeds) - 5} more" if len(seeds) > 5 else "")
+
+
+def _check_seeds(seeds: Any, where: str) -> None:
+    """CellFileError where `seeds` are no integers, repeat a seed (one episode counted twice) or
+    hold a seed of no test episode (`splits.py`: a test seed is odd and below the validation
+    seeds; an even one is a training seed)."""
+    if not isinstance(seeds, list) or not all(_is_int(seed) for seed in seeds):
+        raise CellFileError(f"{where} {json.dumps(seeds)[:40]} are not seeds (integers)")
+    repeated = [str(seed) for seed, count in sorted(Counter(seeds).items()) if count > 1]
+    if repeated:
+        raise CellFileError(
+            f"{where} list seed {_listed(repeated)} more than once: a test seed is one episode"
+        )
+    foreign = [
+        f"{seed} ({'negative' if seed < 0 else split_of_seed(seed)})"
+        for seed in seeds
+        if seed < 0 or split_of_seed(seed) != "test"
+    ]
+    if foreign:
+        raise CellFileError(
+            f"{where} hold seeds of no test episode: {_listed(foreign)}; a test seed is odd and "
+            f"below {VALIDATION_OFFSET}"
+        )
+
+
 def _check_episodes(record: dict[str, Any], where: str) -> None:
-    """Each episode record's types and its outcome agreeing with success and error; the counts of
-    those that ran and erred those of the record, its test seeds theirs."""
+    """Its test seeds distinct seeds of the test split, as many as its episodes and erred ones;
+    each episode record's types and its outcome agreeing with success and error; the counts of
+    those that ran and erred those of the record, its test seeds and erred seeds theirs."""
+    test_seeds = record.get("test_seeds")
+    if test_seeds is not None:
+        _check_seeds(test_seeds, f"{where}: its test_seeds")
+        if len(test_seeds) != record["episodes"] + record.get("errors", 0):
+            raise CellFileError(
+                f"{where}: its {len(test_seeds)} test_seeds are not its {record['episodes']} "
+                f"episodes and {record.get('errors', 0)} erred ones"
+            )
     episodes = record.get("episode_results")
     if episodes is None:
         return
@@ -272,8 +327,15 @@ def _check_episodes(record: dict[str, Any], where: str) -> None:
                 f"{where}: {key} is {record.get(key, 0)}, its episodes hold {count}"
             )
     seeds = [episode["seed"] for episode in episodes]
+    _check_seeds(seeds, f"{where}: its episode_results")
     if record.get("test_seeds", seeds) != seeds:
         raise CellFileError(f"{where}: test_seeds are not the seeds of its episode_results")
+    erred = sorted(episode["seed"] for episode in episodes if episode.get("error") is not None)
+    if sorted(record.get("erred_seeds", erred)) != erred:
+        raise CellFileError(
+            f"{where}: erred_seeds {record['erred_seeds']} are not the seeds of its erred "
+            f"episodes {erred}"
+        )
 
 
 def _check_cell(record: dict[str, Any], where: str) -> None:
@@ -282,6 +344,7 @@ def _check_cell(record: dict[str, Any], where: str) -> None:
     _check_fields(record, CELL_FIELDS, CELL_OPTIONAL, where)
     protocol = record["protocol"]
     _check_fields(protocol, PROTOCOL_FIELDS, PROTOCOL_OPTIONAL, f"{where}: protocol")
+    _check_names(protocol, f"{where}: protocol")
     for key in ("task", "setting", "method", "imagery"):
         if protocol.get(key) != record.get(key):
             raise CellFileError(
@@ -290,9 +353,7 @@ def _check_cell(record: dict[str, Any], where: str) -> None:
             )
     _check_fields(record["checkpoint"], {"step": "int"}, {"path": "str"}, f"{where}: checkpoint")
     for index, entry in enumerate(record.get("validation", [])):
-        rounds = {"step": "int", "success_rate": "number?"}
-        view_search = dict.fromkeys(VIEW_SEARCH_FIGURES, "number")  # mira's rounds kept since
-        _check_fields(entry, rounds, view_search, f"{where}: validation[{index}]")
+        _check_round(entry, protocol.get("validation_episodes"), f"{where}: validation[{index}]")
     machine = record.get("machine", {})
     _check_fields(machine, {}, {"fit": "list", "test": "dict"}, f"{where}: machine")
     for index, fit in enumerate(machine.get("fit", [])):
@@ -300,6 +361,38 @@ def _check_cell(record: dict[str, Any], where: str) -> None:
     if not all(isinstance(overlay, str) for overlay in record.get("overlays", [])):
         raise CellFileError(f"{where}: overlays {record['overlays']} are not config paths")
     _check_fit(record, where)
+
+
+def _check_round(entry: Any, episodes: int | None, where: str) -> None:
+    """A validation round: its step, its success rate (null: the round erred) a fraction of the
+    protocol's `episodes` a round (where it names them), and mira's view-search figures, if any."""
+    view_search = dict.fromkeys(VIEW_SEARCH_FIGURES, "number")  # mira's, rounds kept since
+    _check_fields(entry, {"step": "int", "success_rate": "number?"}, view_search, where)
+    rate = entry["success_rate"]
+    if rate is None:
+        return
+    successes = rate * episodes if episodes else rate
+    if not 0 <= rate <= 1 or (episodes and not math.isclose(successes, round(successes))):
+        of = f" of {episodes} episodes" if episodes else ""
+        raise CellFileError(f"{where}: success_rate {rate} is no success rate{of}")
+
+
+def _check_names(record: dict[str, Any], where: str) -> None:
+    """CellFileError where a record or protocol names a task, setting, method or imagery this
+    package does not have (the table would show it as a column or row of its own)."""
+    known = {
+        "task": tuple(TASKS),
+        "setting": SETTINGS,
+        "trained_setting": SETTINGS,
+        "method": METHOD_NAMES,
+        "imagery": (None, *IMAGERY_KINDS),
+    }
+    for key, names in known.items():
+        if key in record and record[key] not in names:
+            raise CellFileError(
+                f"{where}: {key} {json.dumps(record[key])[:40]} is none of this package's "
+                f"({', '.join(str(name) for name in names)})"
+            )
 
 
 def _check_fit(record: dict[str, Any], where: str) -> None:
@@ -374,14 +467,17 @@ def archived_world(path: Path) -> str | None:
 def _read(path: Path) -> Any:
     try:
         return json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+    except (OSError, ValueError) as error:  # ValueError: not JSON, or an integer of 4300+ digits
         raise CellFileError(f"unreadable results file {path}: {error}") from error
+    except RecursionError as error:
+        raise CellFileError(f"unreadable results file {path}: nested too deeply") from error
 
 
 def _checked(record: Any, path: Path, world: str | None) -> dict[str, Any]:
     """`record` read from `path`, checked (see the module docstring), with "path" added."""
     where = str(path)
     _check_fields(record, RECORD_FIELDS, RECORD_OPTIONAL, where)
+    _check_names(record, where)
     if record.get("split", "test") != "test":
         raise CellFileError(
             f"{where} is neither a run-cell cell nor a test record: its split is "

@@ -12,8 +12,12 @@ import torch
 from scipy.stats import binomtest, norm
 from torchmetrics import Metric
 
+CONFIDENCE = 0.95  # the confidence of every interval a record states (the report's "95% Wilson")
 
-def wilson_interval(successes: int, episodes: int, confidence: float = 0.95) -> tuple[float, float]:
+
+def wilson_interval(
+    successes: int, episodes: int, confidence: float = CONFIDENCE
+) -> tuple[float, float]:
     """Wilson score interval of a binomial proportion; (0, 1) when there are no episodes."""
     if episodes < 0 or not 0 <= successes <= max(episodes, 0):
         raise ValueError(f"invalid counts: {successes} successes out of {episodes} episodes")
@@ -132,7 +136,7 @@ def summarize(episodes: Iterable[Mapping[str, Any]]) -> dict:
         "success_rate": successes / len(ran) if ran else None,
         "ci_low": low,
         "ci_high": high,
-        "confidence": 0.95,
+        "confidence": CONFIDENCE,
         **strict_summary(ran),
         "failures": dict(Counter(r["failure"] for r in ran if r.get("failure") is not None)),
         "errors": len(erred),

@@ -9,6 +9,15 @@ validation and test success). Only tensors and plain values remain, so it loads 
 `evaluation.checkpoints.load_checkpoint`. `pretrained/manifest.json` lists them with the same
 provenance.
 
+`export-pretrained` takes a checkpoint and the record of its test (`lightning test`'s results
+file, `evaluate-checkpoints --split test`'s record, or a run-cell cell), loaded with the checks of
+`evaluation/cells.py` (counts, seeds, this checkout's world); the record must be an error-free test
+of that very checkpoint, known by its content: the SHA-256 the record holds
+(`checkpoint_sha256`), else that of the file the record names. It writes into the package folder
+of the checkout it runs in (the nearest folder above the working directory holding
+`src/nerf_transporter/pretrained/`), whichever copy of the package is installed; `--out` elsewhere.
+The manifest is read, and the checkpoint loaded, before anything is written.
+
 A shipped policy belongs to the world it was trained and tested in (`provenance.test.world`, the
 world fingerprint of `sim.fingerprint`): in another world its actions and its measured success mean
 nothing, so `try` refuses it by name (exit status 2), and `try --list` marks it, until it is
@@ -18,7 +27,6 @@ re-shipped from a table measured in this world.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import io
 import json
 import sys
@@ -31,6 +39,8 @@ import yaml
 
 from nerf_transporter.atomic import unwritable_reason, write_file, write_json
 from nerf_transporter.console import HelpFormatter
+from nerf_transporter.data.episode import file_sha256
+from nerf_transporter.evaluation.cells import load_record
 from nerf_transporter.evaluation.checkpoints import (
     config_callbacks,
     load_checkpoint,
@@ -50,6 +60,9 @@ from nerf_transporter.sim.fingerprint import components_read, same_world, world_
 from nerf_transporter.splits import split_seed
 
 MANIFEST = "manifest.json"
+# the package folder of shipped policies inside a checkout (`--out`'s default: the checkout's own)
+CHECKOUT_PRETRAINED = Path("src/nerf_transporter/pretrained")
+ENTRY_NAMES = ("task", "method", "file")  # the fields naming a manifest entry
 # what a shipped policy keeps of a Lightning checkpoint (optimizer and loop states are dropped)
 KEPT_KEYS = (
     "state_dict",
@@ -69,14 +82,27 @@ def policy_file_name(task: str, method: str) -> str:
 
 
 def load_manifest(folder: Path = PRETRAINED_DIR) -> list[dict[str, Any]]:
-    """The shipped policies' entries (empty when none is shipped)."""
+    """The shipped policies' entries (empty when none is shipped); a ValueError naming the file
+    where it is no manifest: no JSON object whose `policies` are entries naming their task,
+    method and file."""
     path = folder / MANIFEST
     if not path.exists():
         return []
+    problem = "its policies are not a list of entries naming their task, method and file"
     try:
-        return json.loads(path.read_text())["policies"]
-    except (json.JSONDecodeError, KeyError, TypeError) as error:
-        raise ValueError(f"{path} is not a manifest of pretrained policies: {error}") from error
+        content = json.loads(path.read_text())
+    except (OSError, ValueError) as error:  # ValueError: not JSON (or not text)
+        problem = str(error)
+    except RecursionError:
+        problem = "nested too deeply"
+    else:
+        policies = content.get("policies") if isinstance(content, dict) else None
+        if isinstance(policies, list) and all(
+            isinstance(entry, dict) and all(isinstance(entry.get(key), str) for key in ENTRY_NAMES)
+            for entry in policies
+        ):
+            return policies
+    raise ValueError(f"{path} is not a manifest of pretrained policies: {problem}")
 
 
 class ForeignWorldError(ValueError):
@@ -132,8 +158,61 @@ def check_world(entry: dict[str, Any], world: str | None = None) -> None:
         raise ForeignWorldError(foreign_world_text(entry, world))
 
 
-def sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+def checkout_pretrained_dir(folder: Path | None = None) -> Path | None:
+    """The package folder of shipped policies of the checkout `folder` (default: the working
+    directory) lies in: `src/nerf_transporter/pretrained` of the nearest folder above it that
+    holds one; None outside a checkout."""
+    folder = (folder or Path.cwd()).absolute()
+    for parent in (folder, *folder.parents):
+        if (parent / CHECKOUT_PRETRAINED).is_dir():
+            return parent / CHECKOUT_PRETRAINED
+    return None
+
+
+def tested_checkpoint_hash(record: dict[str, Any]) -> str:
+    """The content hash of the checkpoint a test record (or a cell) tested: the one it holds,
+    else that of the file it names, which must be there."""
+    if record.get("checkpoint_sha256"):
+        return record["checkpoint_sha256"]
+    named = record.get("checkpoint")
+    named = named.get("path") if isinstance(named, dict) else named
+    if not named or not Path(named).is_file():
+        raise ValueError(
+            f"{record['path']} names no checkpoint file here ({named}) and holds no "
+            "checkpoint_sha256, so the checkpoint it tested cannot be known: run export-pretrained "
+            "from the folder it was tested in"
+        )
+    return file_sha256(named)
+
+
+def check_test_of(record: dict[str, Any], checkpoint: Path) -> None:
+    """ValueError unless `record` is an error-free test, with its episodes, of `checkpoint`
+    itself (by content: `tested_checkpoint_hash`)."""
+    where = record["path"]
+    if record["errors"] or not record["episodes"] or not record.get("episode_results"):
+        raise ValueError(
+            f"{where} is not an error-free test with its episodes ({record['episodes']} episodes, "
+            f"{record['errors']} erred)"
+        )
+    if tested_checkpoint_hash(record) != file_sha256(checkpoint):
+        raise ValueError(
+            f"{where} tests another checkpoint than {checkpoint} (their contents differ); export "
+            "the checkpoint together with the record of its own test"
+        )
+
+
+def read_checkpoint(checkpoint: Path) -> dict[str, Any]:
+    """The checkpoint's content, tensors and plain values only; a ValueError naming it where it
+    is no readable checkpoint (truncated, not one, or holding other objects)."""
+    try:
+        state = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    except Exception as error:  # truncated, not a checkpoint, or refused by weights_only
+        raise ValueError(
+            f"{checkpoint} is not a readable weights-only checkpoint: {error}"
+        ) from error
+    if not isinstance(state, dict) or not {"state_dict", "global_step"} <= state.keys():
+        raise ValueError(f"{checkpoint} is no checkpoint of `lightning fit` (no weights or step)")
+    return state
 
 
 def run_config(checkpoint: Path) -> dict[str, Any]:
@@ -141,7 +220,13 @@ def run_config(checkpoint: Path) -> dict[str, Any]:
     path = checkpoint.resolve().parent.parent / "config.yaml"
     if not path.is_file():
         raise ValueError(f"{checkpoint} is not in a run folder with its config.yaml ({path})")
-    return yaml.safe_load(path.read_text())
+    try:
+        config = yaml.safe_load(path.read_text())
+    except (OSError, ValueError, yaml.YAMLError) as error:
+        raise ValueError(f"{path} is not a readable run config: {error}") from error
+    if not isinstance(config, dict):
+        raise ValueError(f"{path} is not a run config (no mapping)")
+    return config
 
 
 def validation_figures(checkpoint: dict[str, Any], config: dict[str, Any]) -> dict[str, Any]:
@@ -160,18 +245,14 @@ def export_pretrained(
     config: str,
     commit: str,
 ) -> dict[str, Any]:
-    """Write `<task>-<method>.ckpt` into `out_folder` from a trained checkpoint and the results file
-    of its `lightning test`, and add (or replace) its entry in the folder's manifest."""
-    state = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    """Write `<task>-<method>.ckpt` into `out_folder` from a trained checkpoint and the record of
+    its test (see the module docstring), and add (or replace) its entry in the folder's manifest;
+    a ValueError naming the file and the problem, before anything is written, otherwise."""
+    record = load_record(results)
+    check_test_of(record, checkpoint)
+    entries = load_manifest(out_folder)
+    state = read_checkpoint(checkpoint)
     resolved = run_config(checkpoint)
-    record = json.loads(results.read_text())
-    if Path(str(record.get("checkpoint"))).name != checkpoint.name:
-        raise ValueError(
-            f"{results} tests {record.get('checkpoint')}, not {checkpoint}; export the checkpoint "
-            "together with its own results file"
-        )
-    if record.get("split") != "test" or record.get("errors"):
-        raise ValueError(f"{results} is not an error-free test of the checkpoint")
     provenance = {
         "task": record["task"],
         "method": record["method"],
@@ -181,7 +262,7 @@ def export_pretrained(
         "trained_steps": resolved.get("trainer", {}).get("max_steps"),
         "step": int(state["global_step"]),
         "validation": validation_figures(state, resolved),
-        "test": {key: record[key] for key in TEST_FIGURES}
+        "test": {key: record.get(key) for key in TEST_FIGURES}
         | {"seeds": [r["seed"] for r in record["episode_results"]], "world": record["world"]},
         "source": checkpoint.name,
     }
@@ -193,12 +274,8 @@ def export_pretrained(
     torch.load(buffer, map_location="cpu", weights_only=True)  # ships only plain data
     write_file(out_folder / name, lambda file: file.write(buffer.getvalue()))
     entry = {"file": name, "bytes": (out_folder / name).stat().st_size}
-    entry |= {"sha256": sha256(out_folder / name)} | provenance
-    entries = [
-        e
-        for e in load_manifest(out_folder)
-        if (e["task"], e["method"]) != (entry["task"], entry["method"])
-    ]
+    entry |= {"sha256": file_sha256(out_folder / name)} | provenance
+    entries = [e for e in entries if (e["task"], e["method"]) != (entry["task"], entry["method"])]
     entries = sorted([*entries, entry], key=lambda e: (e["task"], e["method"]))
     write_json(out_folder / MANIFEST, {"policies": entries})
     return entry
@@ -341,28 +418,37 @@ def export_main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "results",
         type=Path,
-        help="its results file from `lightning test` (for a run-cell fit: <run>/evaluation/<checkpoint>-test-normal.json)",
+        help="the record of its test: `lightning test`'s results file, or for a run-cell fit "
+        "<run>/evaluation/<checkpoint>-test-normal.json or its cell; the record must name the "
+        "checkpoint (by content) and be of this checkout's world",
     )
     parser.add_argument("--config", required=True, help="the config(s) the run was trained with")
     parser.add_argument("--commit", required=True, help="the git commit the run was trained at")
-    parser.add_argument("--out", type=Path, default=PRETRAINED_DIR, help="pretrained folder")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        help="the folder to write the policy and its manifest entry into (default: "
+        f"{CHECKOUT_PRETRAINED} of the checkout the working directory lies in, whichever copy of "
+        "the package is installed)",
+    )
     args = parser.parse_args(argv)
-    for path in (args.checkpoint, args.results):
-        if not path.is_file():
-            print(f"nerf-transporter export-pretrained: no such file: {path}", file=sys.stderr)
-            return 2
     try:
+        for path in (args.checkpoint, args.results):
+            if not path.is_file():
+                raise ValueError(f"no such file: {path}")
+        out = args.out or checkout_pretrained_dir()
+        if out is None:
+            raise ValueError(
+                f"the working directory lies in no checkout of nerf-transporter (no "
+                f"{CHECKOUT_PRETRAINED} above it): run it in the checkout to ship from, or give --out"
+            )
+        if reason := unwritable_reason(out):
+            raise ValueError(f"--out {out} cannot be written: {reason}")
         entry = export_pretrained(
-            args.checkpoint,
-            args.results,
-            args.out,
-            config=args.config,
-            commit=args.commit,
+            args.checkpoint, args.results, out, config=args.config, commit=args.commit
         )
-    except (ValueError, KeyError, json.JSONDecodeError) as error:
+    except ValueError as error:
         print(f"nerf-transporter export-pretrained: {error}", file=sys.stderr)
         return 2
-    print(
-        f"wrote {args.out / entry['file']} ({entry['bytes'] / 1e6:.2f} MB): {cell(entry['test'])}"
-    )
+    print(f"wrote {out / entry['file']} ({entry['bytes'] / 1e6:.2f} MB): {cell(entry['test'])}")
     return 0

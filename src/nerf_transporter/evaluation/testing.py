@@ -39,6 +39,7 @@ from lightning.pytorch import LightningModule, Trainer
 from lightning.pytorch.callbacks import Callback
 
 from nerf_transporter.atomic import write_new_json
+from nerf_transporter.data.episode import file_sha256
 from nerf_transporter.evaluation.metrics import summarize
 from nerf_transporter.evaluation.report import cell
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
@@ -84,9 +85,11 @@ def results_record(
 
     "setting" is the setting the episodes ran in, "trained_setting" the one the policy was trained
     in (its DataModule's `setting`); "imagery" is how the views were built for an imagery method
-    (nerf, oracle), None for the methods that see the RGB-D heightmap or the state. A method's
-    test-time options (`Method.test_time_options`: mira's view choice) and, for mira, the view
-    search's figures (`evaluation.view_search.summary`) follow the success figures.
+    (nerf, oracle), None for the methods that see the RGB-D heightmap or the state;
+    "checkpoint_sha256" the content hash of the checkpoint file tested (None without a local
+    file), by which `export-pretrained` knows it. A method's test-time options
+    (`Method.test_time_options`: mira's view choice) and, for mira, the view search's figures
+    (`evaluation.view_search.summary`) follow the success figures.
     """
     results = sorted(results, key=lambda result: result["seed"])
     view_search = view_search_summary([result.get("view_search") for result in results])
@@ -99,6 +102,9 @@ def results_record(
         "split": split,
         "imagery": spec.imagery if getattr(method, "input_kind", None) == "imagery" else None,
         "checkpoint": checkpoint,
+        "checkpoint_sha256": file_sha256(checkpoint)
+        if checkpoint and Path(checkpoint).is_file()
+        else None,
         "global_step": global_step,
         "world": world_fingerprint(),
         **summarize(results),
