@@ -33,33 +33,33 @@ TOOLS: dict[str, tuple[str, str]] = {
         "nerf_transporter.data.info:main",
         "episodes, seeds, imagery quality (--verify)",
     ),
-    "report": ("nerf_transporter.evaluation.report:main", "results table (markdown or --csv)"),
+    "report": ("nerf_transporter.experiments.report:main", "results table (markdown or --csv)"),
     "try": (
-        "nerf_transporter.evaluation.pretrained:try_main",
+        "nerf_transporter.experiments.pretrained:try_main",
         "run a shipped pretrained policy on a few test episodes, write videos",
     ),
     "export-pretrained": (
-        "nerf_transporter.evaluation.pretrained:export_main",
+        "nerf_transporter.experiments.pretrained:export_main",
         "reduce a trained checkpoint to a shipped pretrained policy",
     ),
     "run-cell": (
-        "nerf_transporter.cell:main",
+        "nerf_transporter.experiments.run_cell:main",
         "one cell of the results table: fit, pick by validation, test, write its JSON",
     ),
     "cache-imagery": (
-        "nerf_transporter.cache_imagery:main",
+        "nerf_transporter.experiments.cache_imagery:main",
         "build a split's evaluation imagery (NeRF fits) into the cache before its episodes run",
     ),
     "failures": (
-        "nerf_transporter.evaluation.failures:main",
+        "nerf_transporter.experiments.failures:main",
         "why the cells' test episodes failed: pick, aim (position / tilt / yaw) or settling",
     ),
     "compare-cells": (
-        "nerf_transporter.evaluation.compare:main",
+        "nerf_transporter.experiments.compare:main",
         "cells tested alike (trained in either setting), paired on common seeds: McNemar p",
     ),
     "evaluate-checkpoints": (
-        "nerf_transporter.evaluation.checkpoints:main",
+        "nerf_transporter.experiments.checkpoints:main",
         "closed-loop success of every checkpoint of a run, to pick the one to test",
     ),
 }
@@ -159,7 +159,7 @@ def latest_checkpoint(runs: Path) -> Path:
     where Lightning wrote `last-v1.ckpt` in a moved run folder) or time (a copy from another
     machine can give every file the same time); an unreadable one (partly written, e.g. on a
     full disk) is skipped with a warning."""
-    from nerf_transporter.evaluation.checkpoints import checkpoint_steps
+    from nerf_transporter.experiments.checkpoints import checkpoint_steps
 
     folders = list(runs.iterdir()) if runs.is_dir() else []
     numbered = [(number, path) for path in folders if (number := _version(path)) is not None]
@@ -179,7 +179,7 @@ def removed_if_unused(claimed: list[Path]) -> Iterator[None]:
     try:
         yield
     except BaseException:
-        from nerf_transporter.evaluation.cells import TEST_RECORD_GLOB
+        from nerf_transporter.experiments.cells import TEST_RECORD_GLOB
 
         for folder in claimed:
             if not any(folder.rglob("*.ckpt")) and not any(folder.rglob(TEST_RECORD_GLOB)):
@@ -405,7 +405,7 @@ def fit_summary(trainer: Any) -> str:
     from lightning.pytorch.cli import SaveConfigCallback
 
     from nerf_transporter.evaluation.callback import SuccessRateCallback
-    from nerf_transporter.evaluation.checkpoints import best_record, validation_records
+    from nerf_transporter.experiments.checkpoints import best_record, validation_records
 
     logger = trainer.logger  # its own log_dir: Trainer.log_dir is a collective call under DDP
     folder = Path(getattr(logger, "log_dir", None) or trainer.default_root_dir)

@@ -20,9 +20,9 @@ from nerf_transporter.evaluation import callback as callback_module
 from nerf_transporter.evaluation import testing as testing_module
 from nerf_transporter.evaluation.callback import SuccessRateCallback
 from nerf_transporter.evaluation.metrics import wilson_interval
-from nerf_transporter.evaluation.report import main as report_main
 from nerf_transporter.evaluation.rollout import EpisodeResult
 from nerf_transporter.evaluation.testing import ClosedLoopTestCallback
+from nerf_transporter.experiments.report import main as report_main
 
 UPRIGHT = np.array([0.0, 0.0, 0.0, 1.0])
 

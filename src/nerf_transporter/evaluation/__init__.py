@@ -6,9 +6,7 @@
 - `metrics`: the `SuccessRate` torchmetrics metric and the 95% Wilson interval;
 - `callback`: `SuccessRateCallback`, validation success during training;
 - `testing`: `ClosedLoopTestCallback` (the CLI adds it): `lightning test` plays the test seeds
-  and writes `results-<checkpoint>.json` beside the checkpoint;
-- `checkpoints`: `nerf-transporter evaluate-checkpoints`, validation success of every checkpoint;
-- `cells`: the cell files of the results table and test records, read and checked (types, counts,
-  world) for `report`, `compare-cells`, `failures` and `run-cell`;
-- `report`: `nerf-transporter report`, the results table.
+  and writes `results-<checkpoint>.json` beside the checkpoint.
+
+The experiments built on it (run-cell, the results table, ...) are `nerf_transporter.experiments`.
 """

@@ -7,7 +7,7 @@ import pytest
 
 from nerf_transporter import cache_imagery
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TINY = """data:
   init_args: {pixel_size: 0.0625, n_rotations: 4}
 """

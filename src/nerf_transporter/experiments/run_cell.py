@@ -26,7 +26,7 @@ episodes, and the model's architecture (its other arguments, e.g. width and crop
 `--config` overlay that widens the networks is another protocol). Each protocol fits in its own
 folder `<logs>/<task>[-<setting>]/<row>/<protocol id>/version_N`, so a rerun resumes the latest run
 from its checkpoint of the highest step (wherever the folder was moved), never trains a finished
-fit again, and skips a cell whose JSON holds the same protocol (read by `evaluation/cells.py`: a
+fit again, and skips a cell whose JSON holds the same protocol (read by `experiments/cells.py`: a
 cell of another world is an error); `--force` measures it again from a fresh fit, in a run folder
 of its own that `--force` resumes until the cell is written from it (so an interrupted `--force`
 continues where it stopped, in a later session too). One command at a time fits and validates a protocol, and one at a time tests it in a setting: each holds a lock in
@@ -74,7 +74,9 @@ from nerf_transporter.cli import (
 )
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.device_info import describe_device
-from nerf_transporter.evaluation.cells import (
+from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR
+from nerf_transporter.evaluation.testing import checkpoint_step, erred_episodes_text
+from nerf_transporter.experiments.cells import (
     CellFileError,
     column_folder,
     cross_protocol,
@@ -83,16 +85,14 @@ from nerf_transporter.evaluation.cells import (
     protocol_id,
     row_key,
 )
-from nerf_transporter.evaluation.checkpoints import (
+from nerf_transporter.experiments.checkpoints import (
     best_record,
     checkpoint_steps,
     config_callbacks,
     evaluate_checkpoints,
     validation_records,
 )
-from nerf_transporter.evaluation.report import SETTINGS, TASKS, cell
-from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR
-from nerf_transporter.evaluation.testing import checkpoint_step, erred_episodes_text
+from nerf_transporter.experiments.report import SETTINGS, TASKS, cell
 from nerf_transporter.methods import METHODS
 from nerf_transporter.splits import split_seed
 

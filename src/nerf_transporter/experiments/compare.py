@@ -3,7 +3,7 @@ on their common test seeds, e.g. one method under two budgets, fitted on two mac
 in two settings (a Challenging-trained cell against the Normal fit's Challenging test). Besides
 run-cell's cells it reads the test records `nerf-transporter evaluate-checkpoints --split test`
 writes into a run's `evaluation/` (e.g. a checkpoint tested on more seeds than its cell). Each
-file is checked as `evaluation/cells.py` checks cells, and all must come from one world: this
+file is checked as `experiments/cells.py` checks cells, and all must come from one world: this
 checkout's, or one archived world's (`results/archive/world-<fingerprint>/`).
 
 Two rates of 100 episodes each differ by chance by up to ~13 points; on the same seeds only the
@@ -18,9 +18,9 @@ import sys
 from pathlib import Path
 
 from nerf_transporter.console import HelpFormatter
-from nerf_transporter.evaluation.cells import CellFileError, load_record, trained_setting
 from nerf_transporter.evaluation.metrics import paired_comparison
-from nerf_transporter.evaluation.report import (
+from nerf_transporter.experiments.cells import CellFileError, load_record, trained_setting
+from nerf_transporter.experiments.report import (
     cell,
     column_name,
     fit_machine_names,

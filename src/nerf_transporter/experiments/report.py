@@ -1,7 +1,7 @@
 """`nerf-transporter report results/ [--csv] [--plot PNG] [--readme README.md] [--results-doc
 docs/results.md]`: the results table (docs/conventions.md, "Evaluation protocol").
 
-Reads the records under the given directories (`evaluation/cells.py`, which checks each): the
+Reads the records under the given directories (`experiments/cells.py`, which checks each): the
 cells `run-cell` writes (`<root>/<column>/<row>.json`), or, in a folder without cells (`logs/`),
 every `results*.json` (`lightning test`, one per tested checkpoint, anywhere below); a test record
 under a folder of cells is left out, named on stderr. It prints one row per method (`mira` with
@@ -12,7 +12,7 @@ reads "success / strict 6-DoF success", each "rate% (n, CI)" with the 95% Wilson
 percent ("-" for a record without the strict check), and is empty where no run exists. Where
 several records exist for one cell, a cell outranks a test record, then the newest wins. Below each
 of our rows, the paper's Table 1 value of that method under the column its table labels it by
-(`evaluation/paper.py`; `PAPER_NOTE` on reading its caption). The cells of an earlier world,
+(`experiments/paper.py`; `PAPER_NOTE` on reading its caption). The cells of an earlier world,
 kept under `<root>/archive/world-<fingerprint>/`, follow in a table of their own under the heading
 "Archived world <fingerprint>", never in this world's table.
 `--plot` draws the table as bars with their intervals and the paper's values as markers;
@@ -40,7 +40,8 @@ import numpy as np
 from nerf_transporter.atomic import write_text
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.drawing import bar_chart, line_chart
-from nerf_transporter.evaluation.cells import (
+from nerf_transporter.evaluation.metrics import paired_comparison
+from nerf_transporter.experiments.cells import (
     ARCHIVE,
     Archive,
     column_folder,
@@ -48,8 +49,7 @@ from nerf_transporter.evaluation.cells import (
     row_key,
     trained_setting,
 )
-from nerf_transporter.evaluation.metrics import paired_comparison
-from nerf_transporter.evaluation.paper import PAPER_SUCCESS
+from nerf_transporter.experiments.paper import PAPER_SUCCESS
 from nerf_transporter.sim.fingerprint import world_fingerprint
 from nerf_transporter.sim.tasks import SETTINGS
 
@@ -436,7 +436,7 @@ def _legend(citation: str) -> str:
         'the cell lacks it), each rate% (test episodes that ran, 95% Wilson interval). "paper" '
         f"rows: Table 1 of the write-up this project started from (see [Citation]({citation}); "
         "success %, 10 demonstrations, its number of test episodes not stated; "
-        "`evaluation/paper.py`)."
+        "`experiments/paper.py`)."
     )
 
 

@@ -19,11 +19,16 @@ import sys
 import time
 from typing import Any
 
-from nerf_transporter.cell import CellError, add_config_arguments, config_files, resolve_config
 from nerf_transporter.console import HelpFormatter, progress_bar
 from nerf_transporter.data.datamodule import RavensDataModule
-from nerf_transporter.evaluation.report import SETTINGS, TASKS
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
+from nerf_transporter.experiments.report import SETTINGS, TASKS
+from nerf_transporter.experiments.run_cell import (
+    CellError,
+    add_config_arguments,
+    config_files,
+    resolve_config,
+)
 from nerf_transporter.splits import split_seed
 
 

@@ -6,7 +6,7 @@ A shipped policy is a Lightning checkpoint reduced to what acting needs: the wei
 and the DataModule's hyper-parameters, the step, and a `provenance` entry (commit, config,
 validation and test success). Only tensors and plain values remain, so it loads with
 `torch.load(..., weights_only=True)`, with `lightning test --ckpt_path` and with
-`evaluation.checkpoints.load_checkpoint`. `pretrained/manifest.json` lists them with the same
+`experiments.checkpoints.load_checkpoint`. `pretrained/manifest.json` lists them with the same
 provenance.
 
 A shipped policy belongs to the world it was trained and tested in (`provenance.test.world`, the
@@ -31,12 +31,6 @@ import yaml
 
 from nerf_transporter.atomic import unwritable_reason, write_file, write_json
 from nerf_transporter.console import HelpFormatter
-from nerf_transporter.evaluation.checkpoints import (
-    config_callbacks,
-    load_checkpoint,
-    validation_score,
-)
-from nerf_transporter.evaluation.report import cell
 from nerf_transporter.evaluation.rollout import (
     DEFAULT_CACHE_DIR,
     EpisodeResult,
@@ -44,6 +38,12 @@ from nerf_transporter.evaluation.rollout import (
     Evaluator,
 )
 from nerf_transporter.evaluation.testing import checkpoint_step, results_record
+from nerf_transporter.experiments.checkpoints import (
+    config_callbacks,
+    load_checkpoint,
+    validation_score,
+)
+from nerf_transporter.experiments.report import cell
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.pretrained import PRETRAINED_DIR
 from nerf_transporter.sim.fingerprint import world_fingerprint
