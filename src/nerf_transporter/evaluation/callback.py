@@ -39,7 +39,7 @@ from torch.utils.tensorboard.summary import hparams as hparams_summary
 from torchmetrics.aggregation import SumMetric
 
 from nerf_transporter.drawing import captioned
-from nerf_transporter.evaluation.metrics import SuccessRate, wilson_interval
+from nerf_transporter.evaluation.metrics import SuccessRate, cell, wilson_interval
 from nerf_transporter.evaluation.rollout import (
     DEFAULT_CACHE_DIR,
     EpisodeResult,
@@ -49,7 +49,6 @@ from nerf_transporter.evaluation.rollout import (
 from nerf_transporter.evaluation.video import draw_action, gif_bytes
 from nerf_transporter.evaluation.view_search import summary as view_search_summary
 from nerf_transporter.evaluation.view_search import view_search_text
-from nerf_transporter.experiments.report import cell
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.splits import split_seed
 

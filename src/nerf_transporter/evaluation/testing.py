@@ -39,10 +39,9 @@ from lightning.pytorch import LightningModule, Trainer
 from lightning.pytorch.callbacks import Callback
 
 from nerf_transporter.atomic import write_new_json
-from nerf_transporter.evaluation.metrics import summarize
+from nerf_transporter.evaluation.metrics import cell, summarize
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
 from nerf_transporter.evaluation.view_search import summary as view_search_summary
-from nerf_transporter.experiments.report import cell
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.pretrained import PRETRAINED_DIR
 from nerf_transporter.sim.fingerprint import world_fingerprint

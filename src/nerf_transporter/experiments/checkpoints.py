@@ -27,10 +27,10 @@ import torch
 from nerf_transporter.atomic import write_new_json
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.data.observation import IMAGERY_KINDS
+from nerf_transporter.evaluation.metrics import cell
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
 from nerf_transporter.evaluation.testing import checkpoint_step, results_record
 from nerf_transporter.evaluation.view_search import view_search_text
-from nerf_transporter.experiments.report import cell
 from nerf_transporter.methods.mira import VIEW_CHOICES
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.splits import split_seed

@@ -18,10 +18,9 @@ import sys
 from pathlib import Path
 
 from nerf_transporter.console import HelpFormatter
-from nerf_transporter.evaluation.metrics import paired_comparison
+from nerf_transporter.evaluation.metrics import cell, paired_comparison
 from nerf_transporter.experiments.cells import CellFileError, load_record, trained_setting
 from nerf_transporter.experiments.report import (
-    cell,
     column_name,
     fit_machine_names,
     markdown,

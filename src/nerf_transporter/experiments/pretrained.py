@@ -31,6 +31,7 @@ import yaml
 
 from nerf_transporter.atomic import unwritable_reason, write_file, write_json
 from nerf_transporter.console import HelpFormatter
+from nerf_transporter.evaluation.metrics import cell
 from nerf_transporter.evaluation.rollout import (
     DEFAULT_CACHE_DIR,
     EpisodeResult,
@@ -43,7 +44,6 @@ from nerf_transporter.experiments.checkpoints import (
     load_checkpoint,
     validation_score,
 )
-from nerf_transporter.experiments.report import cell
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.pretrained import PRETRAINED_DIR
 from nerf_transporter.sim.fingerprint import world_fingerprint

@@ -40,7 +40,7 @@ import numpy as np
 from nerf_transporter.atomic import write_text
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.drawing import bar_chart, line_chart
-from nerf_transporter.evaluation.metrics import paired_comparison
+from nerf_transporter.evaluation.metrics import cell, paired_comparison
 from nerf_transporter.experiments.cells import (
     ARCHIVE,
     Archive,
@@ -51,6 +51,7 @@ from nerf_transporter.experiments.cells import (
 )
 from nerf_transporter.experiments.paper import PAPER_SUCCESS
 from nerf_transporter.sim.fingerprint import world_fingerprint
+from nerf_transporter.sim.registration import TASK_NAMES
 from nerf_transporter.sim.tasks import SETTINGS
 
 # rows of the table, in order: the method's name, or `<method>-oracle` for oracle imagery
@@ -65,12 +66,11 @@ METHODS = {
 PAPER_LABELS = {method: f"paper: {METHODS[method]}" for method in PAPER_SUCCESS} | {
     "mira": "paper: its method"
 }
-TASKS = ("block-insertion", "place-red-in-green", "hanging-disks", "stacking-kits")
 Column = tuple[str, str, str]  # (task, setting tested in, setting trained in)
 # the table's columns, always shown: each task trained Normal, tested Normal and Challenging; other
 # columns (a policy trained in another setting) follow where records exist
 COLUMNS: tuple[Column, ...] = tuple(
-    (task, setting, "normal") for task in TASKS for setting in ("normal", "challenging")
+    (task, setting, "normal") for task in TASK_NAMES for setting in ("normal", "challenging")
 )
 PAPER_NOTE = (
     "The paper's Table 1 labels four columns Normal and place-red-in-green Challenging, and its "
@@ -114,18 +114,6 @@ def paper_value(method: str, column: Column) -> int | None:
     return PAPER_SUCCESS.get(method, {}).get((task, setting)) if trained == "normal" else None
 
 
-def cell(record: dict) -> str:
-    """'rate% (n, low-high)' with percentages rounded to integers; '; k erred' appended when
-    episodes erred (they are not in n)."""
-    episodes, errors = record["episodes"], record.get("errors", 0)
-    erred = f"; {errors} erred" if errors else ""
-    if episodes == 0:
-        return f"- (0{erred})"
-    rate = round(100 * record["successes"] / episodes)
-    low, high = round(100 * record["ci_low"]), round(100 * record["ci_high"])
-    return f"{rate}% ({episodes}, {low}-{high}{erred})"
-
-
 def table_cell(record: dict) -> str:
     """A cell of the table: 'success / strict 6-DoF success', each as `cell` writes it ('-' for a
     record without the strict check)."""
@@ -143,7 +131,7 @@ def _rank(value: str, known: tuple[str, ...]) -> tuple[int, str]:
 
 def _column_order(column: Column) -> tuple:
     """Sort key of a column: tasks, then settings trained in, then tested in, as listed."""
-    return _rank(column[0], TASKS), _rank(column[2], SETTINGS), _rank(column[1], SETTINGS)
+    return _rank(column[0], TASK_NAMES), _rank(column[2], SETTINGS), _rank(column[1], SETTINGS)
 
 
 def newest_records(records: list[dict]) -> dict[tuple[str, str, str, str], dict]:

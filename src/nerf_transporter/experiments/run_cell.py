@@ -74,6 +74,7 @@ from nerf_transporter.cli import (
 )
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.device_info import describe_device
+from nerf_transporter.evaluation.metrics import cell
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR
 from nerf_transporter.evaluation.testing import checkpoint_step, erred_episodes_text
 from nerf_transporter.experiments.cells import (
@@ -92,8 +93,9 @@ from nerf_transporter.experiments.checkpoints import (
     evaluate_checkpoints,
     validation_records,
 )
-from nerf_transporter.experiments.report import SETTINGS, TASKS, cell
 from nerf_transporter.methods import METHODS
+from nerf_transporter.sim.registration import TASK_NAMES
+from nerf_transporter.sim.tasks import SETTINGS
 from nerf_transporter.splits import split_seed
 
 CALLBACK = "SuccessRateCallback"
@@ -728,7 +730,7 @@ def main(argv: list[str] | None = None) -> int:
         "the cell JSON. Resumable; a cell already measured under the same protocol is skipped.",
         formatter_class=HelpFormatter,
     )
-    parser.add_argument("--task", required=True, choices=TASKS)
+    parser.add_argument("--task", required=True, choices=TASK_NAMES)
     parser.add_argument("--method", required=True, choices=list(METHODS))
     parser.add_argument(
         "--setting", default="normal", choices=SETTINGS, help="the setting trained (and tested) in"
