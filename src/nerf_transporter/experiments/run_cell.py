@@ -37,8 +37,7 @@ record stays in the run's `evaluation/`) and exits 1; a finished test whose cell
 written is taken from there by the next run instead of testing again. `--fit-only` runs only the
 fit, without the closed-loop validation callback (a GPU machine without PyBullet); the same command
 without it, where PyBullet is, validates the unscored checkpoints closed loop, picks the best and
-tests it. This module drives `lightning fit`, so it sits beside the CLI, above the evaluation
-layer.
+tests it. The fit is `lightning fit` (`experiments.lightning_cli`), driven from Python.
 """
 
 from __future__ import annotations
@@ -65,13 +64,6 @@ import torch
 import yaml
 
 from nerf_transporter.atomic import unwritable_reason, write_json
-from nerf_transporter.cli import (
-    NoRunToResumeError,
-    build_cli,
-    claim_version,
-    latest_checkpoint,
-    removed_if_unused,
-)
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.device_info import describe_device
 from nerf_transporter.evaluation.metrics import cell
@@ -92,6 +84,13 @@ from nerf_transporter.experiments.checkpoints import (
     config_callbacks,
     evaluate_checkpoints,
     validation_records,
+)
+from nerf_transporter.experiments.lightning_cli import build_cli
+from nerf_transporter.experiments.runs import (
+    NoRunToResumeError,
+    claim_version,
+    latest_checkpoint,
+    removed_if_unused,
 )
 from nerf_transporter.methods import METHODS
 from nerf_transporter.sim.registration import TASK_NAMES
