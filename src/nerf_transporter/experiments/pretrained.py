@@ -22,7 +22,6 @@ import hashlib
 import io
 import json
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -32,19 +31,13 @@ import yaml
 from nerf_transporter.atomic import unwritable_reason, write_file, write_json
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.evaluation.metrics import cell
-from nerf_transporter.evaluation.rollout import (
-    DEFAULT_CACHE_DIR,
-    EpisodeResult,
-    EvaluationSpec,
-    Evaluator,
-)
-from nerf_transporter.evaluation.testing import checkpoint_step, results_record
+from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EpisodeResult
+from nerf_transporter.evaluation.testing import checkpoint_step, evaluate_policy
 from nerf_transporter.experiments.checkpoints import (
     config_callbacks,
     load_checkpoint,
     validation_score,
 )
-from nerf_transporter.parallel import share_cores
 from nerf_transporter.pretrained import PRETRAINED_DIR
 from nerf_transporter.sim.fingerprint import world_fingerprint
 from nerf_transporter.splits import split_seed
@@ -215,29 +208,17 @@ def try_policy(
     check_world(entry)
     path = folder / entry["file"]
     model, datamodule = load_checkpoint(path, torch.device("cpu"))
-    spec = EvaluationSpec.from_datamodule(datamodule, split="test", cache_dir=cache_dir)
-    seeds = [split_seed("test", index) for index in range(episodes)]
-    workers, threads = share_cores(len(seeds), workers)
-    start = time.perf_counter()
-    with Evaluator(spec) as evaluator:
-        results = evaluator.run(
-            model,
-            seeds,
-            progress=True,
-            desc=f"{task} {method}",
-            workers=workers,
-            threads=threads,
-            video_dir=video_dir,
-        )
-    return results_record(
-        [result.to_json() for result in results],
-        method=model,
-        spec=spec,
-        trained_setting=datamodule.setting,
+    return evaluate_policy(
+        model,
+        datamodule,
+        [split_seed("test", index) for index in range(episodes)],
         split="test",
+        cache_dir=cache_dir,
+        workers=workers,
         checkpoint=str(path),
         global_step=checkpoint_step(path),
-        wall_s=time.perf_counter() - start,
+        desc=f"{task} {method}",
+        video_dir=video_dir,
     )
 
 
