@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from nerf_transporter import cache_imagery
+from nerf_transporter.experiments import cache_imagery
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = """data:
