@@ -62,8 +62,8 @@ from nerf_transporter.console import HelpFormatter, progress_bar
 from nerf_transporter.data.heightmap import heightmap_from_rgbd
 from nerf_transporter.data.labels import Action, action_from_labels, heightmap_labels
 from nerf_transporter.device_info import cpu_model
-from nerf_transporter.evaluation.failures import carried_pose
 from nerf_transporter.evaluation.metrics import wilson_interval
+from nerf_transporter.experiments.failures import carried_pose
 from nerf_transporter.sim import TASKS, cameras, make_env
 from nerf_transporter.sim.env import RavensEnv
 from nerf_transporter.sim.fingerprint import world_fingerprint

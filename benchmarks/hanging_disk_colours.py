@@ -20,8 +20,8 @@ import json
 import sys
 from pathlib import Path
 
-from nerf_transporter.evaluation.failures import load_records
-from nerf_transporter.evaluation.report import seed_outcomes
+from nerf_transporter.experiments.failures import load_records
+from nerf_transporter.experiments.report import seed_outcomes
 from nerf_transporter.sim import make_env
 from nerf_transporter.sim.tasks.hanging_disks import TEST_COLORS
 

@@ -28,12 +28,12 @@ from nerf_transporter.atomic import write_json
 from nerf_transporter.console import progress_bar
 from nerf_transporter.data.observation import IMAGERY_KINDS
 from nerf_transporter.evaluation.cache import ImageryCache
-from nerf_transporter.evaluation.checkpoints import (
+from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec
+from nerf_transporter.experiments.checkpoints import (
     chosen_checkpoints,
     evaluate_checkpoints,
     load_checkpoint,
 )
-from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec
 from nerf_transporter.splits import split_seed
 
 

@@ -19,15 +19,10 @@ import torch
 from lightning.pytorch.callbacks import ModelCheckpoint
 from torch.utils.data import DataLoader
 
-from nerf_transporter.cli import (
-    build_cli,
-    claim_version,
-    fit_summary,
-    latest_checkpoint,
-    lightning_main,
-    main,
-)
+from nerf_transporter.cli import lightning_main, main
 from nerf_transporter.evaluation.callback import SuccessRateCallback
+from nerf_transporter.experiments.lightning_cli import build_cli, fit_summary
+from nerf_transporter.experiments.runs import claim_version, latest_checkpoint
 from nerf_transporter.methods import METHODS, Mira, TransporterSE2
 from tests.helpers.synthetic import SIZE, STATE_DIM, synthetic_batch, synthetic_observation
 

@@ -9,8 +9,8 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from nerf_transporter.cli import build_cli
 from nerf_transporter.config_include import ConfigIncludeError, load_with_includes, merge
+from nerf_transporter.experiments.lightning_cli import build_cli
 from nerf_transporter.methods import METHODS
 from nerf_transporter.sim import TASKS
 

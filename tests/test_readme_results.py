@@ -3,8 +3,8 @@ writes."""
 
 from pathlib import Path
 
-from nerf_transporter.evaluation.cells import find_records
-from nerf_transporter.evaluation.report import (
+from nerf_transporter.experiments.cells import find_records
+from nerf_transporter.experiments.report import (
     README_END,
     README_START,
     RESULTS_DOC_END,

@@ -11,8 +11,8 @@ import torch
 
 from nerf_transporter.cli import lightning_main
 from nerf_transporter.cli import main as cli_main
-from nerf_transporter.evaluation import checkpoints as checkpoints_module
-from nerf_transporter.evaluation.checkpoints import (
+from nerf_transporter.evaluation import rollout
+from nerf_transporter.experiments.checkpoints import (
     UntrustedCheckpointError,
     check_checkpoint_classes,
     load_checkpoint,
@@ -123,6 +123,19 @@ def test_evaluate_checkpoints_refuses_a_checkpoint_naming_foreign_code(
     assert not (run / "evaluation").exists()
 
 
+def test_export_pretrained_refuses_a_checkpoint_naming_foreign_code(evil_module, tmp_path, capsys):
+    checkpoint = fake_checkpoint(tmp_path / "model.ckpt", {"_class_path": "evilpolicy.Policy"})
+    results = tmp_path / "results.json"
+    results.write_text("{}")
+    out = tmp_path / "package"
+    out.mkdir()
+    argv = ["export-pretrained", str(checkpoint), str(results), "--out", str(out)]
+    assert cli_main([*argv, "--config", "c.yaml", "--commit", "abc"]) == 2
+    err = capsys.readouterr().err
+    assert f"{checkpoint} names 'evilpolicy.Policy'" in err and err.count("\n") == 1
+    assert not evil_module.exists() and not any(out.iterdir())
+
+
 def test_loading_a_checkpoint_refuses_a_foreign_instantiator(evil_module, tmp_path):
     """`try` and the benchmarks load checkpoints through `load_checkpoint`."""
     hyper_parameters = {
@@ -184,7 +197,7 @@ def test_evaluate_checkpoints_refuses_an_unwritable_output_before_the_first_epis
     )
     monkeypatch.chdir(tmp_path)
     Path(blocked).write_text("a file where a folder should be")
-    monkeypatch.setattr(checkpoints_module, "Evaluator", no_episode)
+    monkeypatch.setattr(rollout, "Evaluator", no_episode)  # what evaluate_policy plays with
     assert cli_main(["evaluate-checkpoints", str(run), "--episodes", "1", *extra]) == 2
     err = capsys.readouterr().err
     assert named.format(run=run) in err and "is not a folder" in err

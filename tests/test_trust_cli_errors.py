@@ -15,9 +15,9 @@ from nerf_transporter.cli import lightning_main
 from nerf_transporter.cli import main as cli_main
 from nerf_transporter.data import episode as ep
 from nerf_transporter.data import generate as gen
-from nerf_transporter.evaluation import failures
 from nerf_transporter.evaluation.metrics import summarize
 from nerf_transporter.evaluation.rollout import NOT_ACHIEVED
+from nerf_transporter.experiments import failures
 from nerf_transporter.sim.fingerprint import world_fingerprint
 from nerf_transporter.sim.registration import env_id
 from tests.helpers.fake_sim import PIXEL

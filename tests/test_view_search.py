@@ -14,13 +14,13 @@ from nerf_transporter.data.augment import sample_transform
 from nerf_transporter.data.datamodule import Demo, DemoDataset
 from nerf_transporter.data.labels import mira_labels, to_view_frames
 from nerf_transporter.evaluation.callback import round_record_path, round_view_search
-from nerf_transporter.evaluation.failures import view_search_by_outcome
-from nerf_transporter.evaluation.report import main as report_main
 from nerf_transporter.evaluation.view_probe import offline_view_search
 from nerf_transporter.evaluation.view_search import summary, view_search_record
+from nerf_transporter.experiments.failures import view_search_by_outcome
+from nerf_transporter.experiments.report import main as report_main
 from nerf_transporter.methods import mira as mira_module
 from nerf_transporter.methods.mira import PlaceSearch, view_scores
-from tests.evaluation.test_report import write_cell
+from tests.experiments.test_report import write_cell
 from tests.helpers.synthetic import PIXEL_SIZE, SIZE
 from tests.methods.test_methods import make_method
 from tests.test_cli import closed_loop_test_config, fit_two_steps

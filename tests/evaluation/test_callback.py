@@ -17,12 +17,12 @@ from torch.utils.data import DataLoader
 from nerf_transporter.data.generate import GenerationConfig
 from nerf_transporter.data.seeds import seed_loader
 from nerf_transporter.evaluation import callback as callback_module
-from nerf_transporter.evaluation import testing as testing_module
+from nerf_transporter.evaluation import rollout as rollout_module
 from nerf_transporter.evaluation.callback import SuccessRateCallback
 from nerf_transporter.evaluation.metrics import wilson_interval
-from nerf_transporter.evaluation.report import main as report_main
 from nerf_transporter.evaluation.rollout import EpisodeResult
 from nerf_transporter.evaluation.testing import ClosedLoopTestCallback
+from nerf_transporter.experiments.report import main as report_main
 
 UPRIGHT = np.array([0.0, 0.0, 0.0, 1.0])
 
@@ -306,7 +306,7 @@ def test_validation_logs_the_strict_rate_beside_the_success_rate(tmp_path, monke
 
 def test_the_results_file_records_the_strict_check(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(testing_module, "Evaluator", StrictEvaluator)
+    monkeypatch.setattr(rollout_module, "Evaluator", StrictEvaluator)  # the test's, via Evaluators
     tester = pl.Trainer(
         logger=False,
         enable_progress_bar=False,

@@ -12,8 +12,8 @@ import pytest
 
 from nerf_transporter.cli import main as cli_main
 from nerf_transporter.data import episode as ep
-from nerf_transporter.evaluation import pretrained
-from nerf_transporter.evaluation.cells import CellFileError, load_record
+from nerf_transporter.experiments import pretrained
+from nerf_transporter.experiments.cells import CellFileError, load_record
 from nerf_transporter.pretrained import PRETRAINED_DIR
 from nerf_transporter.sim import fingerprint
 

@@ -44,8 +44,7 @@ from torchmetrics.aggregation import SumMetric
 
 from nerf_transporter.atomic import write_json
 from nerf_transporter.drawing import captioned
-from nerf_transporter.evaluation.metrics import SuccessRate, wilson_interval
-from nerf_transporter.evaluation.report import cell
+from nerf_transporter.evaluation.metrics import SuccessRate, cell, wilson_interval
 from nerf_transporter.evaluation.rollout import (
     DEFAULT_CACHE_DIR,
     EpisodeResult,

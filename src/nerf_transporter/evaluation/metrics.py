@@ -1,5 +1,6 @@
-"""Success rate of closed-loop episodes: a torchmetrics metric, its Wilson score interval, and the
-paired comparison of two methods on the same seeds."""
+"""Success rate of closed-loop episodes: a torchmetrics metric, its Wilson score interval, the
+rate as the results table writes it (`cell`), and the paired comparison of two methods on the same
+seeds."""
 
 from __future__ import annotations
 
@@ -57,6 +58,18 @@ def paired_comparison(first: Mapping[int, bool], second: Mapping[int, bool]) -> 
         "neither": counts[(False, False)],
         "p_value": binomtest(first_only, discordant, 0.5).pvalue if discordant else 1.0,
     }
+
+
+def cell(record: dict) -> str:
+    """'rate% (n, low-high)' with percentages rounded to integers; '; k erred' appended when
+    episodes erred (they are not in n)."""
+    episodes, errors = record["episodes"], record.get("errors", 0)
+    erred = f"; {errors} erred" if errors else ""
+    if episodes == 0:
+        return f"- (0{erred})"
+    rate = round(100 * record["successes"] / episodes)
+    low, high = round(100 * record["ci_low"]), round(100 * record["ci_high"])
+    return f"{rate}% ({episodes}, {low}-{high}{erred})"
 
 
 class SuccessRate(Metric):

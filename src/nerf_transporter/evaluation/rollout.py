@@ -47,12 +47,12 @@ from nerf_transporter.data.observation import (
 from nerf_transporter.evaluation.cache import ImageryCache, config_hash
 from nerf_transporter.evaluation.video import EpisodeVideo, plan_panel
 from nerf_transporter.evaluation.view_search import true_action, view_search_record
+from nerf_transporter.evaluation.workers import EpisodeWorkers, RunnerRecipe, policy_recipe
 from nerf_transporter.parallel import available_cores
 from nerf_transporter.sim.fingerprint import world_fingerprint
 from nerf_transporter.sim.tasks import POSE_ERROR_KEYS, pose_error_text
 
 if TYPE_CHECKING:
-    from nerf_transporter.evaluation.workers import EpisodeWorkers
     from nerf_transporter.imagery import ImageryConfig
 
 log = logging.getLogger(__name__)
@@ -190,6 +190,11 @@ class EpisodeResult:
         record = dataclasses.asdict(self)
         record.pop("frames")
         return {"outcome": self.outcome} | record
+
+    @classmethod
+    def erred(cls, seed: int, error: str) -> EpisodeResult:
+        """An episode that did not finish, for a reason not the robot's doing (`error`)."""
+        return cls(seed=seed, success=False, failure=None, error=error)
 
     @classmethod
     def from_json(cls, record: dict) -> EpisodeResult:
@@ -544,19 +549,15 @@ class Evaluator:
                     results.append(self.run_episode(method, seed, **options))
                     count(results[-1])
                 return results
-            from nerf_transporter.evaluation.workers import policy_recipe  # imports this module
-
             return self._worker_processes(workers, threads).run(
-                self.spec,
-                self.env_factory,
+                RunnerRecipe(Evaluator, (self.spec, self.env_factory)),
                 policy_recipe(method),
                 episodes,
+                EpisodeResult.erred,
                 count,
             )
 
     def _worker_processes(self, count: int, threads: int | None) -> EpisodeWorkers:
-        from nerf_transporter.evaluation.workers import EpisodeWorkers
-
         threads = max(1, available_cores() // count) if threads is None else threads
         workers = self._workers
         if workers is None or (workers.count, workers.threads) != (count, threads):
@@ -564,3 +565,29 @@ class Evaluator:
                 workers.close()
             self._workers = EpisodeWorkers(count, threads)
         return self._workers
+
+
+class Evaluators:
+    """One open `Evaluator` at a time, kept while the spec stays the same: policies evaluated one
+    after another (the checkpoints of a run) share its environments and worker processes."""
+
+    def __init__(self) -> None:
+        self._evaluator: Evaluator | None = None
+
+    def get(self, spec: EvaluationSpec) -> Evaluator:
+        """The open Evaluator of `spec`; one of another spec is closed first."""
+        if self._evaluator is None or self._evaluator.spec != spec:
+            self.close()
+            self._evaluator = Evaluator(spec)
+        return self._evaluator
+
+    def close(self) -> None:
+        if self._evaluator is not None:
+            self._evaluator.close()
+            self._evaluator = None
+
+    def __enter__(self) -> Evaluators:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()

@@ -26,10 +26,13 @@ of that for no gain.
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -40,9 +43,8 @@ from lightning.pytorch.callbacks import Callback
 
 from nerf_transporter.atomic import write_new_json
 from nerf_transporter.data.episode import file_sha256
-from nerf_transporter.evaluation.metrics import summarize
-from nerf_transporter.evaluation.report import cell
-from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
+from nerf_transporter.evaluation.metrics import cell, summarize
+from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluators
 from nerf_transporter.evaluation.view_search import summary as view_search_summary
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.pretrained import PRETRAINED_DIR
@@ -116,6 +118,60 @@ def results_record(
     }
 
 
+def evaluate_policy(
+    method: torch.nn.Module,
+    datamodule: Any,
+    seeds: list[int],
+    *,
+    split: str,
+    setting: str | None = None,
+    imagery: str | None = None,
+    cache_dir: str | None = DEFAULT_CACHE_DIR,
+    workers: int | None = None,
+    processes: int = 1,
+    checkpoint: str | None = None,
+    global_step: int | None = None,
+    progress: bool = True,
+    desc: str = "episodes",
+    video_dir: str | os.PathLike | None = None,
+    evaluators: Evaluators | None = None,
+    gather: Callable[[list[dict[str, Any]]], list[dict[str, Any]]] | None = None,
+) -> dict[str, Any]:
+    """The results record (`results_record`) of a policy on `seeds` of `split`: in the scene of its
+    DataModule (`EvaluationSpec.from_datamodule`, with `setting`, `imagery` and `cache_dir`), in
+    `workers` processes on this process's share of the cores (`share_cores`, with `processes`
+    processes evaluating side by side, as DDP ranks do), every episode recorded into `video_dir`
+    where given. `evaluators` keeps the Evaluator open for the caller's next policy (default: one
+    of its own, closed after); `gather` pools the episodes of all DDP processes. `checkpoint` and
+    `global_step` name the policy in the record."""
+    start = time.perf_counter()
+    spec = EvaluationSpec.from_datamodule(
+        datamodule, split=split, setting=setting, imagery=imagery, cache_dir=cache_dir
+    )
+    workers, threads = share_cores(len(seeds), workers, processes)
+    with contextlib.nullcontext(evaluators) if evaluators is not None else Evaluators() as kept:
+        episodes = kept.get(spec).run(
+            method,
+            seeds,
+            progress=progress,
+            desc=desc,
+            workers=workers,
+            threads=threads,
+            video_dir=video_dir,
+        )
+    results = [episode.to_json() for episode in episodes]
+    return results_record(
+        gather(results) if gather else results,
+        method=method,
+        spec=spec,
+        trained_setting=datamodule.setting,
+        split=split,
+        checkpoint=checkpoint,
+        global_step=global_step,
+        wall_s=time.perf_counter() - start,
+    )
+
+
 def checkpoint_step(path: str | os.PathLike) -> int:
     """The global step a checkpoint was saved at."""
     checkpoint = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
@@ -169,12 +225,10 @@ class ClosedLoopTestCallback(Callback):
         self.video_dir = video_dir
         self.record: dict[str, Any] | None = None
         self._seeds: list[int] = []
-        self._start = 0.0
 
     def on_test_epoch_start(self, trainer: Trainer, pl_module: LightningModule) -> None:
         self.record = None
         self._seeds = []
-        self._start = time.perf_counter()
 
     def on_test_batch_end(
         self,
@@ -191,23 +245,6 @@ class ClosedLoopTestCallback(Callback):
 
     def on_test_epoch_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
         datamodule = trainer.datamodule
-        spec = EvaluationSpec.from_datamodule(datamodule, split="test")
-        workers, threads = share_cores(
-            len(self._seeds), getattr(datamodule, "test_workers", None), trainer.num_devices
-        )
-        with Evaluator(spec) as evaluator:
-            episodes = evaluator.run(
-                pl_module,
-                self._seeds,
-                progress=trainer.is_global_zero,
-                desc="test episodes",
-                workers=workers,
-                threads=threads,
-                video_dir=self.video_dir,
-            )
-        results = [episode.to_json() for episode in episodes]
-        if trainer.world_size > 1:
-            results = gather_json(pl_module, results)
         checkpoint = trainer.ckpt_path
         if not checkpoint:
             step = trainer.global_step
@@ -215,15 +252,19 @@ class ClosedLoopTestCallback(Callback):
             step = checkpoint_step(checkpoint)
         else:
             step = None  # a checkpoint behind a URL: Lightning read it, its step is not at hand
-        record = results_record(
-            results,
-            method=pl_module,
-            spec=spec,
-            trained_setting=datamodule.setting,
+        record = evaluate_policy(
+            pl_module,
+            datamodule,
+            self._seeds,
             split="test",
+            workers=getattr(datamodule, "test_workers", None),
+            processes=trainer.num_devices,
             checkpoint=str(checkpoint) if checkpoint else None,
             global_step=step,
-            wall_s=time.perf_counter() - self._start,
+            progress=trainer.is_global_zero,
+            desc="test episodes",
+            video_dir=self.video_dir,
+            gather=functools.partial(gather_json, pl_module) if trainer.world_size > 1 else None,
         )
         for name in ("success_rate", "ci_low", "ci_high", "episodes", "errors", *STRICT_LOGGED):
             if record[name] is not None:  # rounded for Lightning's table; the file keeps all digits

@@ -1,9 +1,12 @@
 """Episodes in worker processes (`Evaluator.run(..., workers=N)`).
 
-Each worker process builds its own `Evaluator` (its own environments and PyBullet clients, the same
-`EvaluationSpec`) and its own copy of the policy, rebuilt from a `PolicyRecipe`: a picklable
-factory (a method's class with its hyper-parameters) and the parent's weights. An episode is a
-function of its seed (`Evaluator.run_episode`), so the results are those of a serial run.
+Each worker process builds its own episode runner from a `RunnerRecipe` (an `Evaluator` of
+`evaluation.rollout`: its own environments and PyBullet clients, the same `EvaluationSpec`) and its
+own copy of the policy, rebuilt from a `PolicyRecipe`: a picklable factory (a method's class with
+its hyper-parameters) and the parent's weights. An episode is a function of its seed
+(`Evaluator.run_episode`), so the results are those of a serial run. This module knows the runner
+only by what it does (`EpisodeRunner`), so that the rollout, which starts the workers, imports it
+and not the other way round.
 
 Every worker is a pool of one process running one episode at a time: a worker process that dies
 (killed, out of memory) takes only its own episode with it. That episode becomes an `error`
@@ -22,11 +25,10 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import torch
 
-from nerf_transporter.evaluation.rollout import EnvFactory, EpisodeResult, EvaluationSpec, Evaluator
 from nerf_transporter.parallel import exit_if_orphaned, process_pool
 
 log = logging.getLogger(__name__)
@@ -35,6 +37,26 @@ WORKER_DIED = (
     "the worker process running this episode died (killed, or out of memory?); "
     "the episode did not finish"
 )
+
+
+class EpisodeRunner(Protocol):
+    """What a worker process runs its episodes with (`evaluation.rollout.Evaluator`)."""
+
+    def run_episode(self, policy: Any, seed: int, **options: Any) -> Any: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class RunnerRecipe:
+    """How a worker process builds its episode runner: `make(*arguments)`, both picklable. A worker
+    keeps the runner (its environments) for the next round of an equal recipe."""
+
+    make: Callable[..., EpisodeRunner]
+    arguments: tuple[Any, ...]
+
+    def build(self) -> EpisodeRunner:
+        return self.make(*self.arguments)
 
 
 @dataclass(frozen=True)
@@ -106,22 +128,22 @@ def policy_recipe(policy: Any) -> PolicyRecipe:
 
 # -- in a worker process -----------------------------------------------------------------------
 
-_WORKER: dict[str, Any] = {}  # this worker's Evaluator and copy of the policy
+_WORKER: dict[str, Any] = {}  # this worker's runner, the recipe it was built from, the policy
 
 
-def _prepare(spec: EvaluationSpec, env_factory: EnvFactory, recipe: PolicyRecipe) -> None:
-    """Install this round's policy; keep the environments of an Evaluator of the same spec."""
-    evaluator = _WORKER.get("evaluator")
-    if evaluator is None or evaluator.spec != spec or evaluator.env_factory != env_factory:
-        if evaluator is not None:
-            evaluator.close()
-        _WORKER["evaluator"] = Evaluator(spec, env_factory)
+def _prepare(runner: RunnerRecipe, recipe: PolicyRecipe) -> None:
+    """Install this round's policy; keep the runner (its environments) built from an equal recipe."""
+    if _WORKER.get("runner_recipe") != runner:
+        if "runner" in _WORKER:
+            _WORKER["runner"].close()
+        _WORKER["runner"] = runner.build()
+        _WORKER["runner_recipe"] = runner
     _WORKER["policy"] = recipe.build()
 
 
-def _episode(seed: int, options: dict[str, Any]) -> EpisodeResult:
+def _episode(seed: int, options: dict[str, Any]) -> Any:
     exit_if_orphaned()
-    return _WORKER["evaluator"].run_episode(_WORKER["policy"], seed, **options)
+    return _WORKER["runner"].run_episode(_WORKER["policy"], seed, **options)
 
 
 # -- in the evaluating process -----------------------------------------------------------------
@@ -146,19 +168,20 @@ class EpisodeWorkers:
 
     def run(
         self,
-        spec: EvaluationSpec,
-        env_factory: EnvFactory,
+        runner: RunnerRecipe,
         recipe: PolicyRecipe,
         episodes: list[tuple[int, dict[str, Any]]],
-        on_result: Callable[[EpisodeResult], None] = lambda result: None,
-    ) -> list[EpisodeResult]:
+        erred: Callable[[int, str], Any],
+        on_result: Callable[[Any], None] = lambda result: None,
+    ) -> list[Any]:
         """Results of `episodes` ((seed, `run_episode` options) pairs) in their order; `on_result` is
-        called as each one finishes. A policy that cannot be rebuilt in a worker raises."""
+        called as each one finishes. An episode whose worker process died ends as `erred(seed,
+        WORKER_DIED)`. A policy that cannot be rebuilt in a worker raises."""
         for worker in self._workers:
             if worker is not None:
                 worker.prepared = None
-        prepare = (spec, env_factory, recipe)
-        results: list[EpisodeResult | None] = [None] * len(episodes)
+        prepare = (runner, recipe)
+        results: list[Any] = [None] * len(episodes)
         queue = deque(enumerate(episodes))
         idle = list(range(self.count))
         running: dict[cf.Future, tuple[int, int]] = {}
@@ -171,7 +194,7 @@ class EpisodeWorkers:
                 finished, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
                 for future in finished:
                     slot, position = running.pop(future)
-                    results[position] = self._result(slot, future, episodes[position][0])
+                    results[position] = self._result(slot, future, episodes[position][0], erred)
                     on_result(results[position])
                     idle.append(slot)
         except BaseException:
@@ -194,7 +217,9 @@ class EpisodeWorkers:
             worker.prepared = worker.pool.submit(_prepare, *prepare)
         return worker.pool.submit(_episode, seed, options)
 
-    def _result(self, slot: int, future: cf.Future, seed: int) -> EpisodeResult:
+    def _result(
+        self, slot: int, future: cf.Future, seed: int, erred: Callable[[int, str], Any]
+    ) -> Any:
         error = self._workers[slot].prepared.exception()  # it ran before the episode
         if error is not None and not isinstance(error, BrokenProcessPool):
             raise RuntimeError(
@@ -208,7 +233,7 @@ class EpisodeWorkers:
                 pass  # the process died during the episode
         log.warning("episode with seed %d erred (not counted): %s", seed, WORKER_DIED)
         self._discard(slot)
-        return EpisodeResult(seed=seed, success=False, failure=None, error=WORKER_DIED)
+        return erred(seed, WORKER_DIED)
 
     def _discard(self, slot: int) -> None:
         worker = self._workers[slot]

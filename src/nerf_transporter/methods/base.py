@@ -182,8 +182,8 @@ def heightmap_tensors(
 class ImageMethod(Method):
     """A method on top-down images: their pixel size, the rotation bins, crop size and FCN width.
 
-    `lightning fit` takes `pixel_size` and `n_rotations` from the data (`cli.py` links them).
-    With `cuda_graphs` (configs/gpu/cuda_graphs.yaml), a fit on CUDA runs each ResNet's training
+    `lightning fit` takes `pixel_size` and `n_rotations` from the data
+    (`experiments/lightning_cli.py` links them). With `cuda_graphs` (configs/gpu/cuda_graphs.yaml), a fit on CUDA runs each ResNet's training
     forward and backward as captured CUDA graphs (`models.graphs`): the same arithmetic in two
     launches instead of hundreds. It does nothing on the CPU or under autocast (bf16-mixed).
     """

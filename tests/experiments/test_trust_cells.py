@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from nerf_transporter.evaluation import compare, report
-from nerf_transporter.evaluation.cells import METHOD_NAMES, CellFileError, load_record
+from nerf_transporter.experiments import compare, report
+from nerf_transporter.experiments.cells import METHOD_NAMES, CellFileError, load_record
 from nerf_transporter.methods import METHODS
-from tests.evaluation.test_compare import edited, write_cell
+from tests.experiments.test_compare import edited, write_cell
 
 REPO = Path(__file__).resolve().parents[2]
 ODD = dict.fromkeys(range(1, 41, 2), True)  # 20 successful episodes on the first test seeds

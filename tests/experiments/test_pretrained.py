@@ -12,9 +12,11 @@ from nerf_transporter import geometry as g
 from nerf_transporter.atomic import write_json
 from nerf_transporter.cli import main as cli_main
 from nerf_transporter.data.episode import file_sha256
-from nerf_transporter.evaluation import pretrained as pretrained_module
-from nerf_transporter.evaluation.checkpoints import load_checkpoint
-from nerf_transporter.evaluation.pretrained import (
+from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
+from nerf_transporter.evaluation.testing import results_directory, results_record
+from nerf_transporter.experiments import pretrained as pretrained_module
+from nerf_transporter.experiments.checkpoints import load_checkpoint
+from nerf_transporter.experiments.pretrained import (
     ForeignWorldError,
     check_world,
     export_pretrained,
@@ -23,8 +25,6 @@ from nerf_transporter.evaluation.pretrained import (
     shipped_table,
     try_policy,
 )
-from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
-from nerf_transporter.evaluation.testing import results_directory, results_record
 from nerf_transporter.pretrained import PRETRAINED_DIR
 from nerf_transporter.sim.fingerprint import world_fingerprint
 from tests.helpers.state_run import trained_state_mlp

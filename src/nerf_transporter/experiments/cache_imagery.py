@@ -19,11 +19,17 @@ import sys
 import time
 from typing import Any
 
-from nerf_transporter.cell import CellError, add_config_arguments, config_files, resolve_config
 from nerf_transporter.console import HelpFormatter, progress_bar
 from nerf_transporter.data.datamodule import RavensDataModule
-from nerf_transporter.evaluation.report import SETTINGS, TASKS
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
+from nerf_transporter.experiments.run_cell import (
+    CellError,
+    add_config_arguments,
+    config_files,
+    resolve_config,
+)
+from nerf_transporter.sim.registration import TASK_NAMES
+from nerf_transporter.sim.tasks import SETTINGS
 from nerf_transporter.splits import split_seed
 
 
@@ -69,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
         "validation and test episodes only read it. Resumable: cached seeds are skipped.",
         formatter_class=HelpFormatter,
     )
-    parser.add_argument("--task", required=True, choices=TASKS)
+    parser.add_argument("--task", required=True, choices=TASK_NAMES)
     parser.add_argument(
         "--setting", default="normal", choices=SETTINGS, help="the setting trained in"
     )

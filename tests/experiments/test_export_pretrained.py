@@ -12,10 +12,10 @@ import torch
 
 from nerf_transporter.cli import main as cli_main
 from nerf_transporter.data.episode import file_sha256
-from nerf_transporter.evaluation import pretrained as pretrained_module
 from nerf_transporter.evaluation.metrics import summarize
-from nerf_transporter.evaluation.pretrained import load_manifest
-from tests.evaluation.test_pretrained import results_of, trained_run
+from nerf_transporter.experiments import pretrained as pretrained_module
+from nerf_transporter.experiments.pretrained import load_manifest
+from tests.experiments.test_pretrained import results_of, trained_run
 
 PACKAGE = Path("src/nerf_transporter/pretrained")
 POLICY = "block-insertion-gt_state_mlp.ckpt"

@@ -5,9 +5,9 @@ from pathlib import Path
 
 import pytest
 
-from nerf_transporter import cache_imagery
+from nerf_transporter.experiments import cache_imagery
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TINY = """data:
   init_args: {pixel_size: 0.0625, n_rotations: 4}
 """

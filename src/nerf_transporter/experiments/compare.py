@@ -3,7 +3,7 @@ on their test seeds, e.g. one method under two budgets, fitted on two machines, 
 in two settings (a Challenging-trained cell against the Normal fit's Challenging test). Besides
 run-cell's cells it reads the test records `nerf-transporter evaluate-checkpoints --split test`
 writes into a run's `evaluation/` (e.g. a checkpoint tested on more seeds than its cell). Each
-file is checked as `evaluation/cells.py` checks cells, and all must come from one world: this
+file is checked as `experiments/cells.py` checks cells, and all must come from one world: this
 checkout's, or one archived world's (`results/archive/world-<fingerprint>/`). Each must be tested
 on the same seeds as the first; with `--allow-unequal-seeds` they are paired on the seeds both
 tested. A line below the table says, for each, how many seeds were paired: those both tested,
@@ -21,10 +21,9 @@ import sys
 from pathlib import Path
 
 from nerf_transporter.console import HelpFormatter
-from nerf_transporter.evaluation.cells import CellFileError, load_record, trained_setting
-from nerf_transporter.evaluation.metrics import paired_comparison
-from nerf_transporter.evaluation.report import (
-    cell,
+from nerf_transporter.evaluation.metrics import cell, paired_comparison
+from nerf_transporter.experiments.cells import CellFileError, load_record, trained_setting
+from nerf_transporter.experiments.report import (
     column_name,
     fit_machine_names,
     markdown,

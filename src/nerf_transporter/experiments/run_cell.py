@@ -32,7 +32,7 @@ fitted with (seed, gradient accumulation and clipping, precision, augmentation, 
 it). Each protocol fits in its own folder `<logs>/<task>[-<setting>]/<row>/<protocol id>/version_N`,
 so a rerun resumes the latest run from its checkpoint of the highest step (wherever the folder was
 moved; never a run whose saved config differs in such a setting), never trains a finished fit
-again, and skips a cell whose JSON holds the same protocol (read by `evaluation/cells.py`: a
+again, and skips a cell whose JSON holds the same protocol (read by `experiments/cells.py`: a
 cell of another world is an error); `--force` measures it again from a fresh fit, in a run folder
 of its own that `--force` resumes until the cell is written from it (so an interrupted `--force`
 continues where it stopped, in a later session too). One command at a time fits and validates a protocol, and one at a time tests it in a setting: each holds a lock in
@@ -43,8 +43,7 @@ record stays in the run's `evaluation/`) and exits 1; a finished test whose cell
 written is taken from there by the next run instead of testing again. `--fit-only` runs only the
 fit, without the closed-loop validation callback (a GPU machine without PyBullet); the same command
 without it, where PyBullet is, validates the unscored checkpoints closed loop, picks the best and
-tests it. This module drives `lightning fit`, so it sits beside the CLI, above the evaluation
-layer.
+tests it. The fit is `lightning fit` (`experiments.lightning_cli`), driven from Python.
 """
 
 from __future__ import annotations
@@ -71,18 +70,14 @@ from typing import Any
 import torch
 import yaml
 
-from nerf_transporter.atomic import unwritable_reason, write_json
-from nerf_transporter.cli import (
-    NoRunToResumeError,
-    build_cli,
-    claim_version,
-    latest_checkpoint,
-    removed_if_unused,
-)
+from nerf_transporter.atomic import UnwritableError, unwritable_reason, write_json
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.device_info import describe_device
 from nerf_transporter.evaluation.callback import round_view_search
-from nerf_transporter.evaluation.cells import (
+from nerf_transporter.evaluation.metrics import cell
+from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR
+from nerf_transporter.evaluation.testing import checkpoint_step, erred_episodes_text
+from nerf_transporter.experiments.cells import (
     CellFileError,
     column_folder,
     cross_protocol,
@@ -91,17 +86,24 @@ from nerf_transporter.evaluation.cells import (
     protocol_id,
     row_key,
 )
-from nerf_transporter.evaluation.checkpoints import (
+from nerf_transporter.experiments.checkpoints import (
+    UntrustedCheckpointError,
     best_record,
     checkpoint_steps,
     config_callbacks,
     evaluate_checkpoints,
     validation_records,
 )
-from nerf_transporter.evaluation.report import SETTINGS, TASKS, cell
-from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR
-from nerf_transporter.evaluation.testing import checkpoint_step, erred_episodes_text
+from nerf_transporter.experiments.lightning_cli import build_cli
+from nerf_transporter.experiments.runs import (
+    NoRunToResumeError,
+    claim_version,
+    latest_checkpoint,
+    removed_if_unused,
+)
 from nerf_transporter.methods import METHODS
+from nerf_transporter.sim.registration import TASK_NAMES
+from nerf_transporter.sim.tasks import SETTINGS
 from nerf_transporter.splits import split_seed
 
 CALLBACK = "SuccessRateCallback"
@@ -987,7 +989,7 @@ def main(argv: list[str] | None = None) -> int:
         "the cell JSON. Resumable; a cell already measured under the same protocol is skipped.",
         formatter_class=HelpFormatter,
     )
-    parser.add_argument("--task", required=True, choices=TASKS)
+    parser.add_argument("--task", required=True, choices=TASK_NAMES)
     parser.add_argument("--method", required=True, choices=list(METHODS))
     parser.add_argument(
         "--setting", default="normal", choices=SETTINGS, help="the setting trained (and tested) in"
@@ -1055,7 +1057,7 @@ def main(argv: list[str] | None = None) -> int:
             device=args.device,
             fit_only=args.fit_only,
         )
-    except (CellError, FileNotFoundError) as error:
+    except (CellError, FileNotFoundError, UnwritableError, UntrustedCheckpointError) as error:
         print(f"nerf-transporter run-cell: {error}", file=sys.stderr)
         return 2
     if args.fit_only and path.is_dir():  # the run folder of the fit

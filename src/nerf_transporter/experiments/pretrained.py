@@ -6,7 +6,7 @@ A shipped policy is a Lightning checkpoint reduced to what acting needs: the wei
 and the DataModule's hyper-parameters, the step, and a `provenance` entry (commit, config,
 validation and test success). Only tensors and plain values remain, so it loads with
 `torch.load(..., weights_only=True)`, with `lightning test --ckpt_path` and with
-`evaluation.checkpoints.load_checkpoint`. `pretrained/manifest.json` lists them with the same
+`experiments.checkpoints.load_checkpoint`. `pretrained/manifest.json` lists them with the same
 provenance.
 
 `export-pretrained` takes a checkpoint and the record of its test (`lightning test`'s results
@@ -30,7 +30,6 @@ import argparse
 import io
 import json
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -40,21 +39,16 @@ import yaml
 from nerf_transporter.atomic import unwritable_reason, write_file, write_json
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.data.episode import file_sha256
-from nerf_transporter.evaluation.cells import load_record
-from nerf_transporter.evaluation.checkpoints import (
+from nerf_transporter.evaluation.metrics import cell
+from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EpisodeResult
+from nerf_transporter.evaluation.testing import checkpoint_step, evaluate_policy
+from nerf_transporter.experiments.cells import load_record
+from nerf_transporter.experiments.checkpoints import (
+    check_checkpoint_classes,
     config_callbacks,
     load_checkpoint,
     validation_score,
 )
-from nerf_transporter.evaluation.report import cell
-from nerf_transporter.evaluation.rollout import (
-    DEFAULT_CACHE_DIR,
-    EpisodeResult,
-    EvaluationSpec,
-    Evaluator,
-)
-from nerf_transporter.evaluation.testing import checkpoint_step, results_record
-from nerf_transporter.parallel import share_cores
 from nerf_transporter.pretrained import PRETRAINED_DIR
 from nerf_transporter.sim.fingerprint import components_read, same_world, world_fingerprint
 from nerf_transporter.splits import split_seed
@@ -247,7 +241,9 @@ def export_pretrained(
 ) -> dict[str, Any]:
     """Write `<task>-<method>.ckpt` into `out_folder` from a trained checkpoint and the record of
     its test (see the module docstring), and add (or replace) its entry in the folder's manifest;
-    a ValueError naming the file and the problem, before anything is written, otherwise."""
+    a ValueError naming the file and the problem, before anything is written, otherwise. A
+    checkpoint that names classes other than this package's is refused before it is read."""
+    check_checkpoint_classes(checkpoint)
     record = load_record(results)
     check_test_of(record, checkpoint)
     entries = load_manifest(out_folder)
@@ -297,29 +293,17 @@ def try_policy(
     check_world(entry)
     path = folder / entry["file"]
     model, datamodule = load_checkpoint(path, torch.device("cpu"))
-    spec = EvaluationSpec.from_datamodule(datamodule, split="test", cache_dir=cache_dir)
-    seeds = [split_seed("test", index) for index in range(episodes)]
-    workers, threads = share_cores(len(seeds), workers)
-    start = time.perf_counter()
-    with Evaluator(spec) as evaluator:
-        results = evaluator.run(
-            model,
-            seeds,
-            progress=True,
-            desc=f"{task} {method}",
-            workers=workers,
-            threads=threads,
-            video_dir=video_dir,
-        )
-    return results_record(
-        [result.to_json() for result in results],
-        method=model,
-        spec=spec,
-        trained_setting=datamodule.setting,
+    return evaluate_policy(
+        model,
+        datamodule,
+        [split_seed("test", index) for index in range(episodes)],
         split="test",
+        cache_dir=cache_dir,
+        workers=workers,
         checkpoint=str(path),
         global_step=checkpoint_step(path),
-        wall_s=time.perf_counter() - start,
+        desc=f"{task} {method}",
+        video_dir=video_dir,
     )
 
 

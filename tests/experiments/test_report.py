@@ -7,16 +7,16 @@ import cv2
 import pytest
 
 from nerf_transporter.cli import main as cli_main
-from nerf_transporter.evaluation.cells import column_folder, cross_protocol
 from nerf_transporter.evaluation.metrics import wilson_interval
-from nerf_transporter.evaluation.report import (
+from nerf_transporter.experiments.cells import column_folder, cross_protocol
+from nerf_transporter.experiments.report import (
     README_END,
     README_START,
     RESULTS_DOC_END,
     RESULTS_DOC_START,
     table_plot,
 )
-from nerf_transporter.evaluation.report import main as report_main
+from nerf_transporter.experiments.report import main as report_main
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
 

@@ -1,7 +1,7 @@
 """`nerf-transporter report results/ [--csv] [--plot PNG] [--readme README.md] [--results-doc
 docs/results.md]`: the results table (docs/conventions.md, "Evaluation protocol").
 
-Reads the records under the given directories (`evaluation/cells.py`, which checks each): the
+Reads the records under the given directories (`experiments/cells.py`, which checks each): the
 cells `run-cell` writes (`<root>/<column>/<row>.json`), or, in a folder without cells (`logs/`),
 every `results*.json` (`lightning test`, one per tested checkpoint, anywhere below); a test record
 under a folder of cells is left out, named on stderr. It prints one row per method (`mira` with
@@ -12,7 +12,7 @@ reads "success / strict 6-DoF success", each "rate% (n, CI)" with the 95% Wilson
 percent ("-" for a record without the strict check), and is empty where no run exists. Where
 several records exist for one cell, a cell outranks a test record, then the newest wins. Below each
 of our rows, the paper's Table 1 value of that method under the column its table labels it by
-(`evaluation/paper.py`; `PAPER_NOTE` on reading its caption). The cells of an earlier world,
+(`experiments/paper.py`; `PAPER_NOTE` on reading its caption). The cells of an earlier world,
 kept under `<root>/archive/world-<fingerprint>/`, follow in a table of their own under the heading
 "Archived world <fingerprint>", never in this world's table.
 `--plot` draws the table as bars with their intervals and the paper's values as markers;
@@ -40,7 +40,9 @@ import numpy as np
 from nerf_transporter.atomic import check_writable, write_text
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.drawing import bar_chart, line_chart
-from nerf_transporter.evaluation.cells import (
+from nerf_transporter.evaluation.metrics import cell, paired_comparison
+from nerf_transporter.evaluation.view_search import VIEW_SEARCH_FIGURES, view_search_text
+from nerf_transporter.experiments.cells import (
     ARCHIVE,
     Archive,
     column_folder,
@@ -48,10 +50,9 @@ from nerf_transporter.evaluation.cells import (
     row_key,
     trained_setting,
 )
-from nerf_transporter.evaluation.metrics import paired_comparison
-from nerf_transporter.evaluation.paper import PAPER_SUCCESS
-from nerf_transporter.evaluation.view_search import VIEW_SEARCH_FIGURES, view_search_text
+from nerf_transporter.experiments.paper import PAPER_SUCCESS
 from nerf_transporter.sim.fingerprint import world_fingerprint
+from nerf_transporter.sim.registration import TASK_NAMES
 from nerf_transporter.sim.tasks import SETTINGS
 
 # rows of the table, in order: the method's name, or `<method>-oracle` for oracle imagery
@@ -66,12 +67,11 @@ METHODS = {
 PAPER_LABELS = {method: f"paper: {METHODS[method]}" for method in PAPER_SUCCESS} | {
     "mira": "paper: its method"
 }
-TASKS = ("block-insertion", "place-red-in-green", "hanging-disks", "stacking-kits")
 Column = tuple[str, str, str]  # (task, setting tested in, setting trained in)
 # the table's columns, always shown: each task trained Normal, tested Normal and Challenging; other
 # columns (a policy trained in another setting) follow where records exist
 COLUMNS: tuple[Column, ...] = tuple(
-    (task, setting, "normal") for task in TASKS for setting in ("normal", "challenging")
+    (task, setting, "normal") for task in TASK_NAMES for setting in ("normal", "challenging")
 )
 PAPER_NOTE = (
     "The paper's Table 1 labels four columns Normal and place-red-in-green Challenging, and its "
@@ -115,18 +115,6 @@ def paper_value(method: str, column: Column) -> int | None:
     return PAPER_SUCCESS.get(method, {}).get((task, setting)) if trained == "normal" else None
 
 
-def cell(record: dict) -> str:
-    """'rate% (n, low-high)' with percentages rounded to integers; '; k erred' appended when
-    episodes erred (they are not in n)."""
-    episodes, errors = record["episodes"], record.get("errors", 0)
-    erred = f"; {errors} erred" if errors else ""
-    if episodes == 0:
-        return f"- (0{erred})"
-    rate = round(100 * record["successes"] / episodes)
-    low, high = round(100 * record["ci_low"]), round(100 * record["ci_high"])
-    return f"{rate}% ({episodes}, {low}-{high}{erred})"
-
-
 def table_cell(record: dict) -> str:
     """A cell of the table: 'success / strict 6-DoF success', each as `cell` writes it ('-' for a
     record without the strict check)."""
@@ -144,7 +132,7 @@ def _rank(value: str, known: tuple[str, ...]) -> tuple[int, str]:
 
 def _column_order(column: Column) -> tuple:
     """Sort key of a column: tasks, then settings trained in, then tested in, as listed."""
-    return _rank(column[0], TASKS), _rank(column[2], SETTINGS), _rank(column[1], SETTINGS)
+    return _rank(column[0], TASK_NAMES), _rank(column[2], SETTINGS), _rank(column[1], SETTINGS)
 
 
 def newest_records(records: list[dict]) -> dict[tuple[str, str, str, str], dict]:
@@ -458,7 +446,7 @@ def _legend(citation: str) -> str:
         'the cell lacks it), each rate% (test episodes that ran, 95% Wilson interval). "paper" '
         f"rows: Table 1 of the write-up this project started from (see [Citation]({citation}); "
         "success %, 10 demonstrations, its number of test episodes not stated; "
-        "`evaluation/paper.py`)."
+        "`experiments/paper.py`)."
     )
 
 

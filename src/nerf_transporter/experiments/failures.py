@@ -49,9 +49,12 @@ import numpy as np
 from nerf_transporter import geometry
 from nerf_transporter.atomic import check_writable, write_json
 from nerf_transporter.console import HelpFormatter, progress_bar
-from nerf_transporter.evaluation.cells import find_records, load_record, row_key, trained_setting
 from nerf_transporter.evaluation.metrics import paired_comparison
-from nerf_transporter.evaluation.report import (
+from nerf_transporter.evaluation.rollout import NOT_ACHIEVED
+from nerf_transporter.evaluation.view_search import summary as view_search_summary
+from nerf_transporter.evaluation.view_search import view_search_text
+from nerf_transporter.experiments.cells import find_records, load_record, row_key, trained_setting
+from nerf_transporter.experiments.report import (
     METHODS,
     column_name,
     column_of,
@@ -59,9 +62,6 @@ from nerf_transporter.evaluation.report import (
     markdown,
     seed_outcomes,
 )
-from nerf_transporter.evaluation.rollout import NOT_ACHIEVED
-from nerf_transporter.evaluation.view_search import summary as view_search_summary
-from nerf_transporter.evaluation.view_search import view_search_text
 from nerf_transporter.geometry import Pose
 from nerf_transporter.sim import make_env
 from nerf_transporter.sim.env import RavensEnv
@@ -441,7 +441,7 @@ def load_records(paths: list[Path]) -> tuple[list[dict[str, Any]], list[dict[str
     """The cells, in table order: run-cell's of this checkout's world in the folders given
     (`<folder>/<column>/<row>.json`, as `results/`; archived worlds left out) and the cell files
     given; then the test records among the files given, in their order. Each checked
-    (`evaluation/cells.py`), with its path under "path"."""
+    (`experiments/cells.py`), with its path under "path"."""
     folders = [path for path in paths if not path.is_file()]
     cells = [record for record in find_records(folders).records if "protocol" in record]
     files = [load_record(path) for path in paths if path.is_file()]

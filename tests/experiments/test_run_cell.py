@@ -15,21 +15,21 @@ import pytest
 import torch
 import yaml
 
-from nerf_transporter import cell as cell_module
 from nerf_transporter.atomic import write_new_json
-from nerf_transporter.cell import CellError, apply_budget, resolve_config, run_cell
-from nerf_transporter.cli import build_cli, free_name
 from nerf_transporter.data.datamodule import RavensDataModule
 from nerf_transporter.device_info import describe_device
-from nerf_transporter.evaluation.cells import CellFileError, find_records, load_cell
 from nerf_transporter.evaluation.metrics import summarize
-from nerf_transporter.evaluation.report import results_table
 from nerf_transporter.evaluation.rollout import EvaluationSpec
+from nerf_transporter.experiments import run_cell as cell_module
+from nerf_transporter.experiments.cells import CellFileError, find_records, load_cell
+from nerf_transporter.experiments.lightning_cli import build_cli, free_name
+from nerf_transporter.experiments.report import results_table
+from nerf_transporter.experiments.run_cell import CellError, apply_budget, resolve_config, run_cell
 from nerf_transporter.geometry import view_grid
 from nerf_transporter.methods import METHODS
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 # the settings that change what is learned beyond the protocol's keys, at the table's values
 TRAINING = {
     section: {

@@ -20,7 +20,6 @@ import json
 import logging
 import math
 import sys
-import time
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -30,12 +29,11 @@ import torch
 from nerf_transporter.atomic import check_writable, write_new_json
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.data.observation import IMAGERY_KINDS
-from nerf_transporter.evaluation.report import cell
-from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
-from nerf_transporter.evaluation.testing import checkpoint_step, results_record
+from nerf_transporter.evaluation.metrics import cell
+from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, Evaluators
+from nerf_transporter.evaluation.testing import checkpoint_step, evaluate_policy
 from nerf_transporter.evaluation.view_search import view_search_text
 from nerf_transporter.methods.mira import VIEW_CHOICES
-from nerf_transporter.parallel import share_cores
 from nerf_transporter.splits import split_seed
 
 log = logging.getLogger(__name__)
@@ -287,10 +285,9 @@ def evaluate_checkpoints(
         check_writable("--video", video_dir)
     device = device or torch.device("cuda" if torch.cuda.is_available() else "cpu")
     seeds = [split_seed(split, index) for index in range(episodes)]
-    workers, threads = share_cores(len(seeds), workers)
     options = {} if view_choice is None else {"view_choice": view_choice}
-    records, evaluator, unloadable = [], None, []
-    try:
+    records, unloadable = [], []
+    with Evaluators() as evaluators:
         for step, path in checkpoints:
             try:
                 model, datamodule = load_checkpoint(path, device, **options)
@@ -298,45 +295,27 @@ def evaluate_checkpoints(
                 log.warning("skipping checkpoint %s that cannot be loaded: %s", path, error)
                 unloadable.append(f"{path} ({error})")
                 continue
-            spec = EvaluationSpec.from_datamodule(
+            record = evaluate_policy(
+                model,
                 datamodule,
+                seeds,
                 split=split,
                 setting=setting,
                 imagery=imagery,
                 cache_dir=cache_dir,
-            )
-            if evaluator is None or evaluator.spec != spec:
-                if evaluator is not None:
-                    evaluator.close()
-                evaluator = Evaluator(spec)
-            start = time.perf_counter()
-            results = evaluator.run(
-                model,
-                seeds,
-                progress=progress,
-                desc=path.name,
                 workers=workers,
-                threads=threads,
-                video_dir=video_dir / path.stem if video_dir else None,
-            )
-            record = results_record(
-                [result.to_json() for result in results],
-                method=model,
-                spec=spec,
-                trained_setting=datamodule.setting,
-                split=split,
                 checkpoint=str(path),
                 global_step=step,
-                wall_s=time.perf_counter() - start,
+                progress=progress,
+                desc=path.name,
+                video_dir=video_dir / path.stem if video_dir else None,
+                evaluators=evaluators,
             )
             suffix = f"-{view_choice}" if view_choice else ""
             write_new_json(
-                run_dir / "evaluation", f"{path.stem}-{split}-{spec.setting}{suffix}", record
+                run_dir / "evaluation", f"{path.stem}-{split}-{record['setting']}{suffix}", record
             )
             records.append(record)
-    finally:
-        if evaluator is not None:
-            evaluator.close()
     if not records:
         raise NoLoadableCheckpointError(
             f"none of the {len(unloadable)} checkpoints of {run_dir} could be loaded, nothing was "

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from nerf_transporter.cli import main as cli_main
-from nerf_transporter.evaluation.checkpoints import chosen_checkpoints
+from nerf_transporter.experiments.checkpoints import chosen_checkpoints
 from tests.helpers.state_run import trained_state_mlp
 
 

@@ -4,9 +4,9 @@ import json
 
 import pytest
 
-from nerf_transporter.evaluation.cells import cross_protocol, protocol_id
-from nerf_transporter.evaluation.compare import main
 from nerf_transporter.evaluation.metrics import summarize
+from nerf_transporter.experiments.cells import cross_protocol, protocol_id
+from nerf_transporter.experiments.compare import main
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
 

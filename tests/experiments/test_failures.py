@@ -7,7 +7,9 @@ import pytest
 
 from nerf_transporter import geometry
 from nerf_transporter.cli import main as cli_main
-from nerf_transporter.evaluation.failures import (
+from nerf_transporter.evaluation.metrics import summarize
+from nerf_transporter.evaluation.rollout import NOT_ACHIEVED
+from nerf_transporter.experiments.failures import (
     AIMED_OFF,
     AIMED_WITHIN_TOLERANCE,
     PICKED_ANOTHER_BODY,
@@ -16,8 +18,6 @@ from nerf_transporter.evaluation.failures import (
     diagnose_cell,
     paired_table,
 )
-from nerf_transporter.evaluation.metrics import summarize
-from nerf_transporter.evaluation.rollout import NOT_ACHIEVED
 from nerf_transporter.sim import make_env
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
