@@ -40,9 +40,13 @@ def test_view_round_trip_and_flattening():
     points = rng.uniform(g.BOUNDS[:, 0], g.BOUNDS[:, 1], size=(50, 3))
     pixels, height = g.world_to_view_pixel(points, rotation)
     assert np.allclose(g.view_pixel_to_world(pixels, height, rotation), points)
-    # An object tilted by the view's rotation looks flat in that view: its normal maps to +z.
-    normal_in_view = rotation.T @ (rotation @ np.array([0.0, 0.0, 1.0]))
-    assert np.allclose(normal_in_view, [0, 0, 1])
+    # A plane tilted by the view's rotation looks flat in that view: its points share one height
+    # and its normal maps to +z.
+    offsets = np.concatenate([rng.uniform(-0.2, 0.2, size=(20, 2)), np.zeros((20, 1))], axis=1)
+    on_plane = g.WORKSPACE_CENTER + offsets @ rotation.T
+    assert np.allclose(g.world_to_view(on_plane, rotation)[:, 2], g.WORKSPACE_CENTER[2])
+    normal_tip = g.WORKSPACE_CENTER + rotation @ np.array([0.0, 0.0, 1.0])
+    assert np.allclose(g.world_to_view(normal_tip, rotation) - g.WORKSPACE_CENTER, [0, 0, 1])
     # The workspace centre is a fixed point of every view.
     assert np.allclose(g.world_to_view(g.WORKSPACE_CENTER, rotation), g.WORKSPACE_CENTER)
 

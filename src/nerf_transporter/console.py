@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 from tqdm.auto import tqdm
@@ -22,14 +23,22 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 
 class LineBar:
     """The part of tqdm's interface the commands use (update, set_postfix, close), written as a
-    plain line on stderr at most every `every_s` seconds and when the count reaches its total."""
+    plain line on stderr at most every `every_s` seconds (of `clock`) and when the count reaches
+    its total."""
 
     def __init__(
-        self, total: int, desc: str, unit: str = "episode", initial: int = 0, every_s: float = 30.0
+        self,
+        total: int,
+        desc: str,
+        unit: str = "episode",
+        initial: int = 0,
+        every_s: float = 30.0,
+        clock: Callable[[], float] = time.perf_counter,
     ) -> None:
         self.total, self.desc, self.unit, self.n, self.every_s = total, desc, unit, initial, every_s
         self.postfix: dict[str, Any] = {}
-        self._start_n, self._start = initial, time.perf_counter()
+        self._clock = clock
+        self._start_n, self._start = initial, clock()
         self._last = self._start
 
     def set_postfix(self, **values: Any) -> None:
@@ -37,7 +46,7 @@ class LineBar:
 
     def update(self, n: int = 1) -> None:
         self.n += n
-        now = time.perf_counter()
+        now = self._clock()
         if now - self._last >= self.every_s or self.n >= self.total:
             self._last = now
             print(self.line(now), file=sys.stderr, flush=True)

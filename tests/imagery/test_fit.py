@@ -107,7 +107,14 @@ def test_hash_grid_field_fits_too(scene_and_views):
     )
     colour, _ = render_views(fit_scene(images, intrinsics, poses, config), [[0.0, 0.0]], config)
     truth, _ = scene.orthographic(0.0, 0.0, PIXEL)
-    assert psnr(colour[0], truth) > 16.0
+    # Measured (one thread): 18.38 dB; on this view the mean-colour image scores 18.09 dB and
+    # uniform grey 15.83 dB. 30 iterations form no box yet (90 reach 20.90 dB, still no box
+    # heights; tests/imagery/test_hash_grid.py checks the field itself). Threshold: above the
+    # mean-colour image by half the measured lead (0.15 of 0.29 dB).
+    mean_colour = np.broadcast_to(
+        truth.reshape(-1, 3).mean(0).round().astype(np.uint8), truth.shape
+    )
+    assert psnr(colour[0], truth) > psnr(mean_colour, truth) + 0.15
 
 
 def test_non_finite_inputs_and_loss_stop_with_a_clear_error(scene_and_views):

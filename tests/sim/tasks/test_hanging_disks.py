@@ -227,3 +227,14 @@ def test_test_seeds_draw_the_anchors_evaluation_colours(env):
             env.reset(seed=split_seed(split, index))
             assert env.task.colors["disk"] in palette
             assert env.task.colors["stand"] == "brown"
+
+
+@pytest.mark.parametrize(("setting", "seed"), [("normal", 5), ("challenging", 6), ("flat", 7)])
+def test_oracle_hangs_the_disk(setting, seed):
+    """The oracle's pick and place, run by the arm: the disk ends on the rod, by both checks."""
+    environment = make_env(TASK, setting)
+    environment.reset(seed=seed)
+    _, reward, terminated, _, info = environment.step(environment.task.oracle(environment))
+    environment.close()
+    assert reward == 1.0 and terminated, info
+    assert info["failure"] is None and info["strict_success"], info
