@@ -8,9 +8,9 @@ import lightning
 import pytest
 import torch
 
-from nerf_transporter import cache_imagery
 from nerf_transporter.data.datamodule import RavensDataModule
 from nerf_transporter.evaluation.rollout import EvaluationSpec
+from nerf_transporter.experiments import cache_imagery
 from nerf_transporter.experiments.run_cell import config_files, resolve_config
 
 REPO = Path(__file__).resolve().parents[2]
