@@ -63,7 +63,8 @@ def _successes(cell: dict[str, Any], successes: int) -> None:
 # problem named in the message -> the edit of the Normal cell that violates only that check
 NORMAL_EDITS: dict[str, Edit] = {
     "successes is 84, its episodes hold 83": _flip_first_success,
-    "errors is 0, its episodes hold 1": _add_an_erred_episode,
+    # the seed count against the episodes and errors stated, checked before the counts themselves
+    "its 101 test_seeds are not its 100 episodes and 0 erred ones": _add_an_erred_episode,
     "strict_successes is 83, its episodes hold 82": lambda cell: next(
         episode for episode in cell["episode_results"] if episode["strict_success"]
     ).update(strict_success=False),
@@ -78,8 +79,8 @@ NORMAL_EDITS: dict[str, Edit] = {
     "-1 strict successes of 100 episodes": lambda cell: _strict_count(cell, -1),
     "ci_low-ci_high 0.75-": lambda cell: cell.update(ci_low=0.75),
     "strict_ci_low-strict_ci_high 0.74-": lambda cell: cell.update(strict_ci_low=0.74),
-    "confidence 1.5 is not in": lambda cell: cell.update(confidence=1.5),
-    "confidence 0 is not in": lambda cell: cell.update(confidence=0),
+    "confidence 1.5 is not 0.95": lambda cell: cell.update(confidence=1.5),
+    "confidence 0 is not 0.95": lambda cell: cell.update(confidence=0),
     "names a fit, but its protocol has no trained_setting": lambda cell: cell.update(
         fit={"protocol_id": cell["protocol_id"], "run_dir": "x", "checkpoint": "y"}
     ),

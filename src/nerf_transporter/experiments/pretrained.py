@@ -243,11 +243,11 @@ def export_pretrained(
     its test (see the module docstring), and add (or replace) its entry in the folder's manifest;
     a ValueError naming the file and the problem, before anything is written, otherwise. A
     checkpoint that names classes other than this package's is refused before it is read."""
-    check_checkpoint_classes(checkpoint)
+    state = read_checkpoint(checkpoint)
+    check_checkpoint_classes(checkpoint)  # before anything it names could be imported
     record = load_record(results)
     check_test_of(record, checkpoint)
     entries = load_manifest(out_folder)
-    state = read_checkpoint(checkpoint)
     resolved = run_config(checkpoint)
     provenance = {
         "task": record["task"],
