@@ -20,6 +20,7 @@ from nerf_transporter.evaluation.rollout import NOT_ACHIEVED
 from nerf_transporter.experiments import failures
 from nerf_transporter.sim.fingerprint import world_fingerprint
 from nerf_transporter.sim.registration import env_id
+from tests.data.test_generate import cli_args
 from tests.helpers.fake_sim import PIXEL
 
 REPO = Path(__file__).resolve().parents[1]
@@ -168,23 +169,7 @@ def test_report_refuses_an_unwritable_plot(capsys):
 
 def generate_args(*changes: str) -> list[str]:
     """`nerf-transporter generate` of one oracle episode into data/ (later options override)."""
-    return [
-        "generate",
-        "--task",
-        "block-insertion",
-        "--imagery",
-        "oracle",
-        "--episodes",
-        "1",
-        "--pixel-size",
-        str(PIXEL),
-        "--nerf-views",
-        "2",
-        "--data-dir",
-        "data",
-        "--no-progress",
-        *changes,
-    ]
+    return ["generate", *cli_args("data", *changes)]
 
 
 @pytest.mark.parametrize(

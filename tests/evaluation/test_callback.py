@@ -279,8 +279,10 @@ class MixedEvaluator(FakeEvaluator):
         ]
 
 
-def test_validation_logs_the_rate_and_interval_of_a_mixed_round(tmp_path, monkeypatch):
-    monkeypatch.setattr(callback_module, "Evaluator", MixedEvaluator)
+def fit_with_a_round_of_three(tmp_path, monkeypatch, evaluator: type) -> pl.Trainer:
+    """A 2-step fit whose one validation round of 3 episodes `evaluator` plays, logged to
+    TensorBoard under `tmp_path`."""
+    monkeypatch.setattr(callback_module, "Evaluator", evaluator)
     callback = SuccessRateCallback(every_n_steps=2, episodes=3, cache_dir=None)
     trainer = pl.Trainer(
         max_steps=2,
@@ -292,6 +294,11 @@ def test_validation_logs_the_rate_and_interval_of_a_mixed_round(tmp_path, monkey
         accelerator="cpu",
     )
     trainer.fit(TinyStateMethod(), datamodule=TinyData())
+    return trainer
+
+
+def test_validation_logs_the_rate_and_interval_of_a_mixed_round(tmp_path, monkeypatch):
+    trainer = fit_with_a_round_of_three(tmp_path, monkeypatch, MixedEvaluator)
     metrics = trainer.callback_metrics
     assert metrics["eval/episodes"].item() == 3
     assert metrics["eval/success_rate"].item() == pytest.approx(2 / 3)
@@ -317,18 +324,7 @@ class StrictEvaluator(FakeEvaluator):
 
 
 def test_validation_logs_the_strict_rate_beside_the_success_rate(tmp_path, monkeypatch):
-    monkeypatch.setattr(callback_module, "Evaluator", StrictEvaluator)
-    callback = SuccessRateCallback(every_n_steps=2, episodes=3, cache_dir=None)
-    trainer = pl.Trainer(
-        max_steps=2,
-        logger=TensorBoardLogger(tmp_path, name="logs"),
-        callbacks=[callback],
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        accelerator="cpu",
-    )
-    trainer.fit(TinyStateMethod(), datamodule=TinyData())
+    trainer = fit_with_a_round_of_three(tmp_path, monkeypatch, StrictEvaluator)
     events = EventAccumulator(trainer.logger.log_dir).Reload()
     assert events.Scalars("eval/success_rate")[0].value == 1.0
     assert events.Scalars("eval/strict_success_rate")[0].value == pytest.approx(1 / 3)
