@@ -197,7 +197,7 @@ def measure_scene(
     grid against the simulator's renders."""
     from nerf_transporter.sim import make_env  # PyBullet: not needed with --dataset
 
-    env = make_env(task, setting, rigs=("nerf",), nerf_cameras=rig and rig.cameras())
+    env = make_env(task, setting, rigs=("nerf",), nerf_cameras=rig.cameras() if rig else None)
     try:
         obs, _ = env.reset(seed=seed)
         grid = geometry.view_grid(setting)
