@@ -1,7 +1,14 @@
-"""Mental-imagery benchmark: fit time, 49-view render time and quality against the simulator.
+"""Mental-imagery benchmark: fit time, view-grid render time and quality against the simulator.
 
     python benchmarks/imagery.py --task block-insertion --episodes 2 --json
     python benchmarks/imagery.py --dataset data/block-insertion-normal-train --episodes 4
+    python benchmarks/imagery.py --task place-red-in-green --setting challenging --threads 1 \
+        --rig mira30 --imagery-option image_downscale=1
+
+A candidate imagery is scored without a policy: `--imagery-option KEY=VALUE` sets any field of
+the fit's settings (`ImageryConfig`, as `generate --imagery-option`), and `--rig` captures the
+scenes with another NeRF rig (`RIGS`: the world's, MIRA's band of elevations, a low band), handed
+to the environment, so the world's default rig and its fingerprint stay as they are.
 
 With `--dataset` (no simulator needed: a GPU machine without PyBullet) the scenes are a NeRF
 dataset's episodes: their stored 30 RGB views are fitted again with the dataset's own imagery
@@ -12,17 +19,19 @@ is scored against the same truth, so the two fits compare on identical inputs.
 Per scene: fit seconds, render seconds for the whole view grid, PSNR of the top-down view and the
 mean over the grid, height MAE (mm) overall and on object pixels (top-down view), and with the
 simulator the grid's height MAE and PSNR by view tilt (the view's axis from the vertical, bins of
-`VIEW_TILT_BINS_DEG`: the 7 x 7 Normal grid reaches 41 deg, the 11 x 11 Challenging one 60) on the
-pixels whose true surface lies over the workspace, those mira places at (`pixels_over_workspace`).
-The steepest views' image borders see past the workspace, where the simulator and the NeRF's floor
-disagree by up to metres: the grid's all-pixel figure (height_mae_grid_mm) counts them, the
-per-tilt one does not. Times are wall
-seconds, and also process CPU seconds (fit_cpu_s, render_cpu_s), steadier than wall time on a
-shared machine (meaningless for GPU work, which they miss). The first line
-names the device (GPU name, or CPU model and torch threads) and the torch version. With --json the
-last line is one JSON object with the medians (fit_s, render_s, fit_cpu_s, render_cpu_s, psnr_db,
-height_mae_mm, object_height_mae_mm; with the simulator height_mae_grid_mm and the per-bin medians
-height_mae_by_view_tilt_mm and psnr_by_view_tilt_db), the device fields and per_scene.
+`VIEW_TILT_BINS_DEG`: the 7 x 7 Normal grid reaches 41 deg, the 11 x 11 Challenging one 60), over
+the workspace (the pixels whose true surface lies over it, those mira places at) and on object
+pixels (those of them whose true surface stands over 5 mm above the table in the world,
+`view_errors`). The steepest views' image borders see past the workspace, where the simulator and
+the NeRF's floor disagree by up to metres: the grid's all-pixel figure (height_mae_grid_mm) counts
+them, the per-tilt ones do not. Times are wall seconds, and also process CPU seconds (fit_cpu_s,
+render_cpu_s, and their sums fit_render_s, fit_render_cpu_s), steadier than wall time on a shared
+machine (meaningless for GPU work, which they miss). The first line names the device (GPU name, or
+CPU model and torch threads) and the torch version. With --json the last line is one JSON object
+with the medians (the times, psnr_db, height_mae_mm, object_height_mae_mm; with the simulator
+height_mae_grid_mm and the per-bin medians height_mae_by_view_tilt_mm, psnr_by_view_tilt_db,
+object_height_mae_by_view_tilt_mm and object_psnr_by_view_tilt_db), the device fields and
+per_scene.
 """
 
 from __future__ import annotations
@@ -31,6 +40,7 @@ import argparse
 import json
 import statistics
 import time
+from dataclasses import dataclass
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
@@ -39,6 +49,7 @@ import numpy as np
 import torch
 
 from nerf_transporter import geometry, splits
+from nerf_transporter.data.generate import imagery_option
 from nerf_transporter.device_info import describe_device, device_line
 from nerf_transporter.imagery import (
     ImageryConfig,
@@ -48,9 +59,18 @@ from nerf_transporter.imagery import (
     render_views,
     resolve_device,
 )
-from nerf_transporter.methods.mira import pixels_over_workspace
+from nerf_transporter.imagery.metrics import OBJECT_HEIGHT
+from nerf_transporter.methods.mira import over_workspace
+from nerf_transporter.sim import cameras
 
 VIEW_TILT_BINS_DEG = (0, 10, 20, 30, 40, 90)
+# (result key, `view_errors` key, label, unit) of the per-tilt figures
+BY_VIEW_TILT = (
+    ("height_mae_by_view_tilt_mm", "workspace_height_mae_mm", "height MAE", "mm"),
+    ("psnr_by_view_tilt_db", "workspace_psnr_db", "PSNR", "dB"),
+    ("object_height_mae_by_view_tilt_mm", "object_height_mae_mm", "object height MAE", "mm"),
+    ("object_psnr_by_view_tilt_db", "object_psnr_db", "object PSNR", "dB"),
+)
 
 
 def view_tilt_deg(roll: float, pitch: float) -> float:
@@ -61,14 +81,93 @@ def view_tilt_deg(roll: float, pitch: float) -> float:
 
 def mean_by_view_tilt(grid: np.ndarray, values: list[float]) -> dict[str, float]:
     """'<low>-<high>' deg -> the mean of `values` (one per view of `grid`) over the views whose
-    tilt from the vertical lies in that bin of `VIEW_TILT_BINS_DEG` (bins without views left out)."""
+    tilt from the vertical lies in that bin of `VIEW_TILT_BINS_DEG`; NaN values (a view without
+    object pixels) are left out, and so are bins without values."""
     tilts = [round(view_tilt_deg(roll, pitch), 6) for roll, pitch in grid]  # 20 deg is 19.99...
     bins = {}
     for low, high in pairwise(VIEW_TILT_BINS_DEG):
-        inside = [value for value, tilt in zip(values, tilts, strict=True) if low <= tilt < high]
+        inside = [
+            value
+            for value, tilt in zip(values, tilts, strict=True)
+            if low <= tilt < high and not np.isnan(value)
+        ]
         if inside:
             bins[f"{low}-{high}"] = float(np.mean(inside))
     return bins
+
+
+@dataclass(frozen=True)
+class CameraBand:
+    """A NeRF rig under study: `count` cameras on one spiral turn around `centre`,
+    `horizontal_radius` from it, their heights rising from `heights[0]` to `heights[1]` (m), each
+    aimed at `centre`; 480 x 640 images, focal 450 (the default rig's)."""
+
+    count: int
+    centre: tuple[float, float, float]
+    horizontal_radius: float
+    heights: tuple[float, float]
+
+    def cameras(self) -> list[cameras.Camera]:
+        intrinsics = cameras.intrinsics_matrix(450.0, cameras.IMAGE_SIZE)
+        rig = []
+        for k in range(self.count):
+            azimuth = 2 * np.pi * k / self.count
+            height = self.heights[0] + (self.heights[1] - self.heights[0]) * k / max(
+                self.count - 1, 1
+            )
+            eye = np.array(self.centre) + np.array(
+                [
+                    self.horizontal_radius * np.cos(azimuth),
+                    self.horizontal_radius * np.sin(azimuth),
+                    height,
+                ]
+            )
+            pose = cameras.look_at(eye, self.centre)
+            rig.append(cameras.Camera(intrinsics, pose, cameras.IMAGE_SIZE))
+        return rig
+
+
+# The NeRF rigs a candidate can be captured with; "default" is the world's (`cameras.nerf_cameras`:
+# 30 cameras 1.05 m from (0.5, 0, 0), elevations 35 -> 75 deg). "mira36" and "mira30" are MIRA's
+# band (45 -> 57 deg elevation) with its 36 cameras or the paper's 30 images; "low30" puts the 30
+# cameras where the steep views look from (27 -> 49 deg elevation, around the workspace centre).
+RIGS: dict[str, CameraBand | None] = {
+    "default": None,
+    "mira36": CameraBand(36, (0.25, 0.0, 0.0), 0.75, (0.75, 1.15)),
+    "mira30": CameraBand(30, (0.25, 0.0, 0.0), 0.75, (0.75, 1.15)),
+    "low30": CameraBand(30, (0.5, 0.0, 0.0), 0.9, (0.45, 1.05)),
+}
+
+
+def view_errors(
+    colour: np.ndarray,
+    height: np.ndarray,
+    truth_colour: np.ndarray,
+    truth_height: np.ndarray,
+    view_rotation: np.ndarray,
+    pixel_size: float,
+) -> dict[str, float]:
+    """One view's height MAE (mm) and PSNR (dB) over the workspace and on its object pixels.
+
+    Workspace pixels are those whose true surface point lies over the workspace; object pixels are
+    the workspace pixels whose true surface point stands more than `OBJECT_HEIGHT` above the table
+    in the world (a tilted view's height is along its own axis, so the table itself is not at
+    height 0 there). Object figures are NaN for a view without object pixels.
+    """
+    pixels = np.stack(np.indices(np.shape(truth_height)), axis=-1)
+    surface = geometry.view_to_world(
+        geometry.pixel_to_world(pixels, truth_height, pixel_size), view_rotation
+    )
+    workspace = over_workspace(surface)
+    objects = workspace & (surface[..., 2] > OBJECT_HEIGHT)
+    errors = {}
+    for name, mask in (("workspace", workspace), ("object", objects)):
+        if mask.any():
+            errors[f"{name}_height_mae_mm"] = height_mae_mm(height[mask], truth_height[mask])[0]
+            errors[f"{name}_psnr_db"] = psnr(colour[mask], truth_colour[mask])
+        else:
+            errors[f"{name}_height_mae_mm"] = errors[f"{name}_psnr_db"] = float("nan")
+    return errors
 
 
 def _synchronize(config: ImageryConfig) -> None:
@@ -86,14 +185,19 @@ def fit_and_render(nerf: dict, grid: np.ndarray, config: ImageryConfig) -> tuple
     start, cpu = time.perf_counter(), time.process_time()
     images = render_views(scene, grid, config)
     render_s, render_cpu_s = time.perf_counter() - start, time.process_time() - cpu
-    times = {"fit_s": fit_s, "render_s": render_s, "fit_cpu_s": fit_cpu_s}
-    return times | {"render_cpu_s": render_cpu_s, "views": len(grid)}, images
+    times = {"fit_s": fit_s, "render_s": render_s, "fit_render_s": fit_s + render_s}
+    times |= {"fit_cpu_s": fit_cpu_s, "render_cpu_s": render_cpu_s}
+    return times | {"fit_render_cpu_s": fit_cpu_s + render_cpu_s, "views": len(grid)}, images
 
 
-def measure_scene(task: str, setting: str, seed: int, config: ImageryConfig) -> dict:
+def measure_scene(
+    task: str, setting: str, seed: int, config: ImageryConfig, rig: CameraBand | None = None
+) -> dict:
+    """Fit scene `seed`'s NeRF views (captured by `rig`, or the world's rig) and score the view
+    grid against the simulator's renders."""
     from nerf_transporter.sim import make_env  # PyBullet: not needed with --dataset
 
-    env = make_env(task, setting, rigs=("nerf",))
+    env = make_env(task, setting, rigs=("nerf",), nerf_cameras=rig.cameras() if rig else None)
     try:
         obs, _ = env.reset(seed=seed)
         grid = geometry.view_grid(setting)
@@ -105,14 +209,16 @@ def measure_scene(task: str, setting: str, seed: int, config: ImageryConfig) -> 
     psnrs = [psnr(colour[v], truth[v][0]) for v in range(len(grid))]
     overall, on_objects = height_mae_mm(height[top], truth[top][1])
     grid_errors = [height_mae_mm(height[v], truth[v][1])[0] for v in range(len(grid))]
-    inside = [
-        pixels_over_workspace(truth[v][1], geometry.tilt_matrix(*grid[v]), config.pixel_size)
+    per_view = [
+        view_errors(
+            colour[v], height[v], *truth[v], geometry.tilt_matrix(*grid[v]), config.pixel_size
+        )
         for v in range(len(grid))
     ]
-    workspace_errors = [
-        height_mae_mm(height[v][inside[v]], truth[v][1][inside[v]])[0] for v in range(len(grid))
-    ]
-    workspace_psnrs = [psnr(colour[v][inside[v]], truth[v][0][inside[v]]) for v in range(len(grid))]
+    by_tilt = {
+        key: mean_by_view_tilt(grid, [errors[name] for errors in per_view])
+        for key, name, _, _ in BY_VIEW_TILT
+    }
     return {
         "task": task,
         "seed": seed,
@@ -122,8 +228,7 @@ def measure_scene(task: str, setting: str, seed: int, config: ImageryConfig) -> 
         "height_mae_mm": overall,
         "object_height_mae_mm": on_objects,
         "height_mae_grid_mm": float(np.mean(grid_errors)),
-        "height_mae_by_view_tilt_mm": mean_by_view_tilt(grid, workspace_errors),
-        "psnr_by_view_tilt_db": mean_by_view_tilt(grid, workspace_psnrs),
+        **by_tilt,
     }
 
 
@@ -169,17 +274,11 @@ def measure_dataset_scene(episode: Path, config: ImageryConfig) -> dict:
     }
 
 
-BY_VIEW_TILT = (
-    ("height_mae_by_view_tilt_mm", "height MAE", "mm"),
-    ("psnr_by_view_tilt_db", "PSNR", "dB"),
-)
-
-
 def _by_tilt_text(result: dict) -> str:
     return "; ".join(
         f"{label} by view tilt: "
         + ", ".join(f"{name} deg {value:.2f} {unit}" for name, value in result[key].items())
-        for key, label, unit in BY_VIEW_TILT
+        for key, _, label, unit in BY_VIEW_TILT
     )
 
 
@@ -196,16 +295,36 @@ def main(argv: list[str] | None = None) -> int:
         "replaces --task)",
     )
     parser.add_argument("--iterations", type=int, default=None, help="override the fit iterations")
+    parser.add_argument(
+        "--imagery-option",
+        type=imagery_option,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="an ImageryConfig field for the fit (repeatable), as `generate --imagery-option`",
+    )
+    parser.add_argument(
+        "--rig",
+        choices=list(RIGS),
+        default="default",
+        help="the NeRF rig that captures the scenes (not with --dataset, whose views are stored)",
+    )
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     parser.add_argument("--device", default="auto", help="auto (CUDA when available), cpu, cuda")
     parser.add_argument("--json", action="store_true", help="last line: one JSON object")
     args = parser.parse_args(argv)
 
-    overrides = {"progress": False, "threads": args.threads, "device": args.device}
+    overrides = dict(args.imagery_option)
+    overrides.update(progress=False, threads=args.threads, device=args.device)
     if args.iterations is not None:
         overrides["iterations"] = args.iterations
     datasets = args.dataset or []
-    config = dataset_config(datasets[0], overrides) if datasets else ImageryConfig(**overrides)
+    if datasets and args.rig != "default":
+        parser.error("--rig: a dataset's views are stored; the rig applies to --task scenes")
+    try:
+        config = dataset_config(datasets[0], overrides) if datasets else ImageryConfig(**overrides)
+    except (TypeError, ValueError) as error:
+        parser.error(f"--imagery-option: {error}")
     if args.threads:
         torch.set_num_threads(args.threads)
     device = describe_device(resolve_device(config.device))
@@ -228,7 +347,7 @@ def main(argv: list[str] | None = None) -> int:
             )
     for task in [] if datasets else args.task:
         for seed in (splits.split_seed("test", i) for i in range(args.episodes)):
-            result = measure_scene(task, args.setting, seed, config)
+            result = measure_scene(task, args.setting, seed, config, RIGS[args.rig])
             per_scene.append(result)
             print(
                 f"{task} seed {seed}: fit {result['fit_s']:.1f} s (CPU {result['fit_cpu_s']:.1f}), "
@@ -240,7 +359,8 @@ def main(argv: list[str] | None = None) -> int:
                 + ")",
                 flush=True,
             )
-    keys = ("fit_s", "render_s", "fit_cpu_s", "render_cpu_s", "psnr_db", "height_mae_mm")
+    keys = ("fit_s", "render_s", "fit_render_s", "fit_cpu_s", "render_cpu_s", "fit_render_cpu_s")
+    keys += ("psnr_db", "height_mae_mm")
     keys += ("object_height_mae_mm",)
     if datasets:
         keys += ("stored_psnr_db", "stored_height_mae_mm", "stored_object_height_mae_mm")
@@ -248,9 +368,13 @@ def main(argv: list[str] | None = None) -> int:
         keys += ("height_mae_grid_mm",)
     summary = {key: statistics.median(r[key] for r in per_scene) for key in keys}
     medians = dict(summary)
-    for key, _, _ in [] if datasets else BY_VIEW_TILT:
+    for key, _, _, _ in [] if datasets else BY_VIEW_TILT:
+        names = sorted(
+            {name for r in per_scene for name in r[key]}, key=lambda n: float(n.split("-")[0])
+        )
         summary[key] = {
-            name: statistics.median(r[key][name] for r in per_scene) for name in per_scene[0][key]
+            name: statistics.median(r[key][name] for r in per_scene if name in r[key])
+            for name in names
         }
     summary.update(device=device, per_scene=per_scene)
     if args.json:

@@ -1,9 +1,10 @@
-"""benchmarks/imagery.py: the grid's height error by view tilt."""
+"""benchmarks/imagery.py: the grid's figures by view tilt, over the workspace and on object pixels."""
 
 import numpy as np
 import pytest
 
 from nerf_transporter import geometry
+from nerf_transporter.methods.mira import pixels_over_workspace
 from tests.helpers.benchmarks import load_benchmark
 
 
@@ -30,3 +31,61 @@ def test_height_error_is_binned_by_the_tilt_of_each_view():
     for name, mean_tilt in by_tilt.items():
         low, high = map(float, name.split("-"))
         assert low <= mean_tilt < high
+
+
+def _view_surface(rotation: np.ndarray, world_height: np.ndarray) -> np.ndarray:
+    """The view height (along the view's axis) at each pixel of a surface standing
+    `world_height` [H, W] above the table in the world (a point P' maps to c + R (P' - c))."""
+    rows, cols = world_height.shape
+    x = geometry.BOUNDS[0, 0] + np.arange(cols)[None, :] * geometry.PIXEL_SIZE
+    y = geometry.BOUNDS[1, 0] + np.arange(rows)[:, None] * geometry.PIXEL_SIZE
+    centre = geometry.WORKSPACE_CENTER
+    tilt = rotation[2, 0] * (x - centre[0]) + rotation[2, 1] * (y - centre[1])
+    return ((world_height - centre[2] - tilt) / rotation[2, 2] + centre[2]).astype(np.float32)
+
+
+def test_object_figures_cover_the_pixels_of_objects_standing_on_the_table_in_a_tilted_view():
+    script = load_benchmark("imagery")
+    rotation = geometry.tilt_matrix(np.radians(30.0), 0.0)
+    rows, cols = geometry.image_shape()
+    world_height = np.zeros((rows, cols))
+    block = (slice(150, 171), slice(70, 91))  # about the workspace centre
+    world_height[block] = 0.03
+    beyond = (slice(0, 4), slice(70, 91))  # an object whose pixels see past the workspace
+    world_height[beyond] = 0.05
+    truth_height = _view_surface(rotation, world_height)
+    # the tilted table itself stands up to 0.29 m along the view's axis: a threshold on the view's
+    # height would take it for objects
+    assert (truth_height[world_height == 0] > 0.005).mean() > 0.4
+    workspace = pixels_over_workspace(truth_height, rotation)
+    assert workspace[block].all() and not workspace[beyond].any()
+    on_block = np.zeros((rows, cols), bool)
+    on_block[block] = True
+
+    height = truth_height + np.where(on_block, 0.004, 0.010).astype(np.float32)
+    height[beyond] += 0.5
+    truth_colour = np.full((rows, cols, 3), 120, np.uint8)
+    colour = truth_colour + np.where(on_block, 10, 30).astype(np.uint8)[..., None]
+    errors = script.view_errors(colour, height, truth_colour, truth_height, rotation, 0.003125)
+
+    assert errors["object_height_mae_mm"] == pytest.approx(4.0, abs=1e-3)
+    assert errors["object_psnr_db"] == pytest.approx(20 * np.log10(255 / 10))
+    blocks, tables = on_block[workspace].sum(), (~on_block)[workspace].sum()
+    expected = (4.0 * blocks + 10.0 * tables) / (blocks + tables)
+    assert errors["workspace_height_mae_mm"] == pytest.approx(expected, abs=1e-3)
+    assert errors["workspace_psnr_db"] == pytest.approx(
+        10 * np.log10(255**2 * (blocks + tables) / (100 * blocks + 900 * tables))
+    )
+
+    bare = script.view_errors(
+        colour, height, truth_colour, _view_surface(rotation, 0 * world_height), rotation, 0.003125
+    )
+    assert np.isnan(bare["object_height_mae_mm"]) and np.isnan(bare["object_psnr_db"])
+
+
+def test_views_without_object_pixels_are_left_out_of_their_tilt_bin():
+    script = load_benchmark("imagery")
+    normal = geometry.view_grid("normal")
+    values = [float("nan")] * len(normal)
+    values[geometry.top_down_view_index(normal)] = 3.0
+    assert script.mean_by_view_tilt(normal, values) == {"0-10": 3.0}

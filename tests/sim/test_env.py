@@ -3,7 +3,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from nerf_transporter import geometry
-from nerf_transporter.sim import make_env
+from nerf_transporter.sim import cameras, make_env
 from nerf_transporter.sim.robot import HOME_JOINTS, dh_frames
 
 
@@ -28,6 +28,27 @@ def test_same_seed_gives_identical_poses_and_images():
     assert not np.array_equal(first["state"], other["state"])
     assert first["nerf"]["rgb"].shape == (2, 48, 64, 3)
     env.close()
+
+
+def test_nerf_rig_can_be_other_cameras_without_changing_the_default():
+    size = (48, 64)
+    intrinsics = cameras.intrinsics_matrix(45.0, size)
+    eyes = ((0.25 + 0.75 * np.cos(a), 0.75 * np.sin(a), 0.9) for a in (0.0, 2.0, 4.0))
+    rig = [cameras.Camera(intrinsics, cameras.look_at(eye, (0.25, 0, 0)), size) for eye in eyes]
+    env = make_env("block-insertion", rigs=("nerf",), nerf_cameras=rig)
+    obs, _ = env.reset(seed=7)
+    assert env.observation_space.contains(obs)
+    assert obs["nerf"]["rgb"].shape == (3, 48, 64, 3)
+    assert np.allclose(obs["nerf"]["cam_to_world"], [camera.cam_to_world for camera in rig])
+    env.close()
+    default = make_env("block-insertion", rigs=("nerf",), nerf_views=3, nerf_image_size=size)
+    assert np.allclose(
+        [camera.cam_to_world for camera in default.nerf_cameras],
+        [camera.cam_to_world for camera in cameras.nerf_cameras(3, size)],
+    )
+    default.close()
+    with pytest.raises(ValueError, match="nerf_views and nerf_image_size"):
+        make_env("block-insertion", rigs=("nerf",), nerf_views=3, nerf_cameras=rig)
 
 
 def test_gymnasium_env_checker_passes():

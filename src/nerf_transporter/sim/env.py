@@ -155,6 +155,9 @@ class RavensEnv(gym.Env):
     `rigs` picks what `obs` holds (`state`, `rgbd`, `nerf`; see docs/interfaces.md). Episodes are
     functions of the reset seed. The `nerf` rig is captured with the arm out of view (as if it had
     moved away for the capture) unless `nerf_show_robot`; the `rgbd` rig sees the arm at home.
+    The `nerf` rig is `cameras.nerf_cameras(nerf_views, nerf_image_size)` unless `nerf_cameras`
+    names other cameras (a rig under study; `nerf_views` and `nerf_image_size` then stay at their
+    defaults, the count and size being the cameras' own).
 
     `render_mode`: `"rgb_array"` makes `render()` return a frame of a fixed side camera; `"human"`
     shows the simulation in PyBullet's GUI window (needs a display) and runs it no faster than
@@ -171,6 +174,7 @@ class RavensEnv(gym.Env):
         nerf_image_size: tuple[int, int] = cameras.IMAGE_SIZE,
         render_mode: str | None = None,
         nerf_show_robot: bool = False,
+        nerf_cameras: Sequence[cameras.Camera] | None = None,
     ) -> None:
         unknown = [rig for rig in rigs if rig not in RIGS]
         if unknown:
@@ -183,9 +187,23 @@ class RavensEnv(gym.Env):
         self.rigs = tuple(rigs)
         self.render_mode = render_mode
         self.nerf_show_robot = nerf_show_robot
-        self.nerf_cameras = (
-            cameras.nerf_cameras(nerf_views, tuple(nerf_image_size)) if "nerf" in rigs else []
-        )
+        if nerf_cameras is not None:
+            if (nerf_views, tuple(nerf_image_size)) != (30, cameras.IMAGE_SIZE):
+                raise ValueError(
+                    "nerf_views and nerf_image_size are for the default nerf rig; with nerf_cameras "
+                    "leave them out (the count and size are the cameras' own)"
+                )
+            if not nerf_cameras:
+                raise ValueError("nerf_cameras must hold at least one camera")
+            if len({camera.image_size for camera in nerf_cameras}) > 1:
+                raise ValueError("the nerf_cameras must share one image size")
+            nerf_views, nerf_image_size = len(nerf_cameras), nerf_cameras[0].image_size
+        if "nerf" not in rigs:
+            self.nerf_cameras = []
+        elif nerf_cameras is not None:
+            self.nerf_cameras = list(nerf_cameras)
+        else:
+            self.nerf_cameras = cameras.nerf_cameras(nerf_views, tuple(nerf_image_size))
         self.rgbd_cameras = cameras.rgbd_cameras() if "rgbd" in rigs else []
         observation = {}
         if "state" in rigs:
@@ -347,6 +365,7 @@ def make_env(
     nerf_image_size: tuple[int, int] = cameras.IMAGE_SIZE,
     render_mode: str | None = None,
     nerf_show_robot: bool = False,
+    nerf_cameras: Sequence[cameras.Camera] | None = None,
 ) -> RavensEnv:
     """A `RavensEnv` for `task` in `setting`; unknown names raise ValueError listing valid ones."""
     if task not in TASKS:
@@ -354,5 +373,11 @@ def make_env(
     if setting not in SETTINGS:
         raise ValueError(f"unknown setting {setting!r}; valid settings: {', '.join(SETTINGS)}")
     return RavensEnv(
-        TASKS[task](setting), rigs, nerf_views, nerf_image_size, render_mode, nerf_show_robot
+        TASKS[task](setting),
+        rigs,
+        nerf_views,
+        nerf_image_size,
+        render_mode,
+        nerf_show_robot,
+        nerf_cameras,
     )

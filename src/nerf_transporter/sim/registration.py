@@ -7,11 +7,11 @@
     env = gymnasium.make("nerf_transporter:nerf_transporter/block-insertion-v0")  # imports it first
 
 Keyword arguments of `gymnasium.make` go to `nerf_transporter.sim.make_env` (`setting`, `rigs`,
-`nerf_views`, `nerf_image_size`, `render_mode`, `nerf_show_robot`). The environment comes in a
-`CheckedEnv`: an action holding anything but real numbers (complex, text, booleans) and a reset
-after close are errors that say so. This module imports neither PyBullet nor the task classes, so
-that importing the package stays cheap: `TASK_NAMES` repeats the keys of `nerf_transporter.sim.TASKS`
-(tests/sim/test_registration.py checks that they agree).
+`nerf_views`, `nerf_image_size`, `render_mode`, `nerf_show_robot`, `nerf_cameras`). The
+environment comes in a `CheckedEnv`: an action holding anything but real numbers (complex, text,
+booleans) and a reset after close are errors that say so. This module imports neither PyBullet nor
+the task classes, so that importing the package stays cheap: `TASK_NAMES` repeats the keys of
+`nerf_transporter.sim.TASKS` (tests/sim/test_registration.py checks that they agree).
 """
 
 from __future__ import annotations
