@@ -8,6 +8,7 @@ import torch
 from torch.utils.data import DataLoader
 
 from nerf_transporter.cli import lightning_main
+from nerf_transporter.cli import main as cli_main
 from nerf_transporter.experiments.lightning_cli import build_cli
 from nerf_transporter.methods import Mira
 from tests.test_cli import SyntheticDataModule, tiny_config
@@ -58,3 +59,15 @@ def test_validate_through_the_console_script_exits_0(fitted):
     assert (
         lightning_main(["validate", "--config", str(config), "--ckpt_path", str(checkpoint)]) == 0
     )
+
+
+@pytest.mark.parametrize("entry", ["lightning", "nerf-transporter"])
+def test_predict_is_refused_with_the_commands_that_judge_a_policy(entry, capsys):
+    """A policy acts in closed loop: `predict` names `lightning test` and `evaluate-checkpoints`
+    instead of Lightning's traceback about a missing `forward`."""
+    argv = ["predict", "--config", "configs/quick/block_insertion.yaml", "--ckpt_path", "x.ckpt"]
+    code = lightning_main(argv) if entry == "lightning" else cli_main(argv)
+    assert code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("lightning predict: ")
+    assert "lightning test --config" in err and "evaluate-checkpoints" in err

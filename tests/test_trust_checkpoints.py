@@ -66,7 +66,7 @@ def fake_checkpoint(path: Path, hyper_parameters: dict, **entries) -> Path:
 
 
 @pytest.mark.parametrize("class_path", ["evilpolicy.Policy", "this.Zen"])
-@pytest.mark.parametrize("command", ["test", "validate", "predict", "fit"])
+@pytest.mark.parametrize("command", ["test", "validate", "fit"])
 def test_lightning_refuses_a_checkpoint_naming_foreign_code_without_importing_it(
     evil_module, tmp_path, capsys, class_path, command
 ):

@@ -1,4 +1,4 @@
-"""nerf-transporter: training sub-commands (fit, validate, test, predict) run LightningCLI;
+"""nerf-transporter: training sub-commands (fit, validate, test) run LightningCLI;
 the others (oracle, generate, dataset-info, report, ...) are tools around it."""
 
 from __future__ import annotations
@@ -62,7 +62,6 @@ LIGHTNING_COMMANDS: dict[str, str] = {
     "fit": "train a method (LightningCLI; e.g. --config configs/block_insertion.yaml)",
     "validate": "validation losses of a checkpoint (LightningCLI)",
     "test": "closed-loop evaluation of a checkpoint (LightningCLI)",
-    "predict": "predictions of a checkpoint (LightningCLI)",
 }
 
 
@@ -82,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         print(_usage())
         return 0
     command, rest = argv[0], argv[1:]
-    if command in LIGHTNING_COMMANDS:
+    if command in LIGHTNING_COMMANDS or command == "predict":  # predict: refused, saying why
         return lightning_main(argv)
     if command not in TOOLS:
         print(f"nerf-transporter: unknown command {command!r}\n\n{_usage()}", file=sys.stderr)
@@ -97,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def lightning_main(args: list[str] | None = None) -> int:
-    """The `lightning` console script: `lightning fit|validate|test|predict ...`
+    """The `lightning` console script: `lightning fit|validate|test ...`
     (`experiments.lightning_cli`)."""
     from nerf_transporter.experiments.lightning_cli import main as lightning
 

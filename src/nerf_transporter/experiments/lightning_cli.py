@@ -1,4 +1,4 @@
-"""The LightningCLI of `lightning fit|validate|test|predict` (`nerf-transporter fit|...`): any
+"""The LightningCLI of `lightning fit|validate|test` (`nerf-transporter fit|...`): any
 method on any DataModule, configs that include others, the closed-loop test callback in every
 trainer, each run in a run folder of its own (`experiments.runs`), the options checked before one is
 claimed."""
@@ -35,7 +35,7 @@ LINKS: tuple[tuple[str, str], ...] = (
 
 
 class RunArgumentError(ValueError):
-    """An option with which `lightning fit|validate|test|predict` cannot run, found before any
+    """An option with which `lightning fit|validate|test` cannot run, found before any
     run folder is claimed (a checkpoint that is no readable file, no step to train, no episode to
     test, a folder that cannot be written)."""
 
@@ -57,6 +57,14 @@ def check_checkpoint_file(path: Path, weights_only: bool | None) -> None:
         raise RunArgumentError(
             f"--ckpt_path {path} is not a readable checkpoint (partly written or not one): {error}"
         ) from error
+
+
+# why `lightning predict` is not offered
+NO_PREDICT = (
+    "a policy here is judged by what it does in the simulator, not by predictions on a data "
+    "set: run `lightning test --config <config> --ckpt_path <checkpoint>` (closed-loop test "
+    "episodes, with --video to see each action) or `nerf-transporter evaluate-checkpoints <run>`"
+)
 
 
 def refused_argument(error: BaseException) -> str | None:
@@ -96,7 +104,7 @@ def build_cli(
     Without an explicit `trainer.logger`, a run logs with TensorBoard to its own
     `logs/<task>/<method>/version_N` (claimed atomically) with checkpoints in its `checkpoints/`;
     `fit --ckpt_path last` resumes the latest run of that task and method in its folder, and
-    `test`/`validate`/`predict` of a run's checkpoint log into that run. Configs are saved there
+    `test`/`validate` of a run's checkpoint log into that run. Configs are saved there
     without replacing one already present. Checkpoints load with `weights_only=True` unless
     `--weights_only false` is given. Before a run folder is claimed, the options are checked
     (`RunArgumentError`): `--ckpt_path` a checkpoint file that loads and whose hyper-parameters
@@ -128,6 +136,13 @@ def build_cli(
 
     class NerfTransporterCLI(LightningCLI):
         closed_loop_test = test_callback  # in every trainer; its `record` after `test`
+
+        @staticmethod
+        def subcommands() -> dict[str, set[str]]:
+            """Lightning's sub-commands but `predict` (`NO_PREDICT`)."""
+            return {
+                name: keys for name, keys in LightningCLI.subcommands().items() if name != "predict"
+            }
 
         def add_arguments_to_parser(self, parser: LightningArgumentParser) -> None:
             """The model's pixel size and rotation bins are the data's (LINKS)."""
@@ -352,7 +367,7 @@ def quiet_lightning() -> None:
 
 
 def main(args: list[str] | None = None) -> int:
-    """The `lightning` console script: `lightning fit|validate|test|predict ...`.
+    """The `lightning` console script: `lightning fit|validate|test ...`.
 
     Exits 1 when a closed-loop test had erred episodes (their seeds are listed); 2 when
     `--ckpt_path last` finds no run to resume, an option cannot run (`RunArgumentError`), a folder
@@ -362,6 +377,10 @@ def main(args: list[str] | None = None) -> int:
     from nerf_transporter.data.episode import CorruptEpisodeError, DatasetConfigMismatchError
     from nerf_transporter.evaluation.testing import erred_seeds_line
 
+    command = (sys.argv[1:] if args is None else args)[:1]
+    if command == ["predict"]:
+        print(f"lightning predict: {NO_PREDICT}", file=sys.stderr)
+        return 2
     claimed: list[Path] = []
     try:
         with removed_if_unused(claimed):
