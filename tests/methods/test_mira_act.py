@@ -108,13 +108,34 @@ def test_mira_places_at_the_argmax_of_the_real_transport():
     torch.manual_seed(0)
     method = Mira(view_chunk=2, **SIZE)
     imagery = _imagery(seed=1)
-    action = method.act({"imagery": imagery})
+    action, search = method.act_with_search({"imagery": imagery})
     images = network_input(imagery["colour"], imagery["height"])
     with torch.no_grad():
         pick = torch.tensor([method.predict_pick(images[TOP : TOP + 1])])
         logits = method.transport(images[TOP : TOP + 1], pick, images[None])[0]
     view, rotation, row, col = np.unravel_index(int(logits.argmax()), logits.shape)
     assert view != TOP
+    # the search evaluation records: this pick, and each view's best placement as integers
+    assert search.pick == (int(pick[0, 0]), int(pick[0, 1]))
+    assert search.chosen_view == view and search.view_best.dtype.kind == "i"
+    assert tuple(search.view_best[view]) == (rotation, row, col)
     position, turn = _place_pose(imagery, int(view), int(rotation), (int(row), int(col)))
     assert np.allclose(action["place"][0], position, atol=1e-6)
     assert np.allclose(g.quat_to_matrix(action["place"][1]), turn, atol=1e-6)
+
+
+def test_the_workspace_bounds_belong_to_the_workspace():
+    """A point on the workspace's edge is over it (the view-search's reachable mask keeps it)."""
+    (x_low, x_high), (y_low, y_high) = g.BOUNDS[0], g.BOUNDS[1]
+    corners = np.array([[x, y, 0.1] for x in (x_low, x_high) for y in (y_low, y_high)])
+    assert mira_module.over_workspace(corners).all()
+    beyond = corners + np.array(
+        [[-1e-9, -1e-9, 0], [-1e-9, 1e-9, 0], [1e-9, -1e-9, 0], [1e-9, 1e-9, 0]]
+    )
+    assert not mira_module.over_workspace(beyond).any()
+
+
+def test_a_view_chunk_of_one_view_is_the_smallest():
+    assert Mira(view_chunk=1, **SIZE).view_chunk == 1
+    with pytest.raises(ValueError, match="view_chunk must be >= 1, got 0"):
+        Mira(view_chunk=0, **SIZE)

@@ -13,7 +13,8 @@ import pytest
 
 from nerf_transporter import geometry
 from nerf_transporter.geometry import Pose
-from nerf_transporter.sim.tasks import TASKS
+from nerf_transporter.sim.tasks import POSE_ERROR_KEYS, TASKS, pose_error_text
+from nerf_transporter.sim.tasks.base import box_corners
 from tests.helpers.tasks import in_frame
 
 INSIDE, OUTSIDE = 0.95, 1.05
@@ -163,3 +164,39 @@ def test_yaw_errors_fold_modulo_a_shapes_symmetry(folds):
                 assert anchor_check["success"] is expected, (sign, steps, fraction)
         half_turn = in_frame(TARGET, yaw=sign * period / 2)  # the farthest a yaw can be
         assert strict.check(half_turn, TARGET)["yaw_error"] == pytest.approx(period / 2)
+
+
+@pytest.mark.parametrize("task", sorted(TASKS))
+def test_a_position_error_of_exactly_the_limit_fails_the_anchor_and_passes_the_strict_check(task):
+    """The anchor's limits are bounds from below (Ravens' `<`), the strict check's inclusive."""
+    upright = np.array([0.0, 0.0, 0.0, 1.0])
+    origin: Pose = (np.zeros(3), upright)
+    anchor, strict = TASKS[task].tolerance.position, TASKS[task].strict_tolerance.position
+    assert not _anchor_success(task, (np.array([anchor, 0.0, 0.0]), upright), origin)
+    assert _anchor_success(
+        task, (np.array([0.0, math.nextafter(anchor, 0.0), 0.0]), upright), origin
+    )
+    assert _strict_success(task, (np.array([0.0, 0.0, strict]), upright), origin)
+    assert not _strict_success(
+        task, (np.array([math.nextafter(strict, 1.0), 0, 0]), upright), origin
+    )
+
+
+@pytest.mark.parametrize("task", sorted(TASKS))
+def test_both_checks_report_the_errors_a_failure_is_explained_with(task):
+    """What the episode records and the failure message print (`pose_error_text`)."""
+    for check in (TASKS[task].tolerance.check, TASKS[task].strict_tolerance.check):
+        errors = check(_moved(TARGET, (0.1, 0.0, 0.0)), TARGET)
+        assert set(errors) == {"success", *POSE_ERROR_KEYS}
+        assert pose_error_text(errors) == (
+            "the object did not end at the target pose (position 10.0 cm, tilt 0.0 deg, "
+            "yaw 0.0 deg)"
+        )
+    assert pose_error_text({"position_error": None}) == "the object did not end at the target pose"
+
+
+def test_a_boxs_corners_are_its_centre_plus_and_minus_each_half_extent():
+    corners = box_corners((0.01, 0.02, 0.03), center=(1.0, 2.0, 3.0))
+    expected = {(x, y, z) for x in (0.99, 1.01) for y in (1.98, 2.02) for z in (2.97, 3.03)}
+    assert corners.shape == (8, 3)
+    assert {tuple(np.round(corner, 9)) for corner in corners} == expected
