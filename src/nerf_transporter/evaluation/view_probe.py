@@ -15,7 +15,7 @@ from nerf_transporter import geometry as g
 from nerf_transporter.data.generate import generate_dataset
 from nerf_transporter.data.labels import labels_from_view_action
 from nerf_transporter.data.preprocess import network_input
-from nerf_transporter.methods.mira import PlaceSearch, view_scores
+from nerf_transporter.methods.mira import view_rank, view_scores
 
 
 def offline_view_search(
@@ -37,10 +37,7 @@ def offline_view_search(
                 true_logits = logits[inside]
                 label = true_logits[labels.rotation_bin][labels.place_pixel]
                 label_ranks.append(int((true_logits > label).sum()))
-        search = PlaceSearch(
-            labels.pick_pixel, torch.cat(scores).double().numpy(), np.zeros((len(views), 3))
-        )
-        true_ranks.append(search.view_rank(labels.place_view))
+        true_ranks.append(view_rank(torch.cat(scores).double().numpy(), labels.place_view))
     return {
         "true_view_rank_median": float(np.median(true_ranks)),
         "view_top1": float(np.mean(np.array(true_ranks) == 0)),

@@ -65,7 +65,7 @@ def view_search_record(
         "chosen_view": [float(a) for a in views[chosen]],
         "true_view": [float(a) for a in views[true]],
         "true_view_rank": search.view_rank(true),
-        "view_steps": int(round(float(steps))) if np.isfinite(steps) else 0,
+        "view_steps": int(round(float(steps))),
         "true_view_pixel_error": None,
         "true_view_rotation_error": None,
     }

@@ -70,10 +70,15 @@ class PlaceSearch:
         return int(np.argmax(self.view_scores))
 
     def view_rank(self, view: int) -> int:
-        """Rank of `view` by score, 0 for the chosen one (equal scores rank in index order, as
-        `chosen_view` breaks ties)."""
-        score = self.view_scores[view]
-        return int((self.view_scores > score).sum() + (self.view_scores[:view] == score).sum())
+        """Rank of `view` by score, 0 for the chosen one (`view_rank`)."""
+        return view_rank(self.view_scores, view)
+
+
+def view_rank(scores: np.ndarray, view: int) -> int:
+    """Rank of `view` among views scored `scores` [V], 0 for the highest (equal scores rank in
+    index order, as `PlaceSearch.chosen_view` breaks ties)."""
+    score = scores[view]
+    return int((scores > score).sum() + (scores[:view] == score).sum())
 
 
 def view_scores(logits: torch.Tensor, view_choice: str) -> torch.Tensor:
