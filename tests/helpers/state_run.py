@@ -42,7 +42,14 @@ def trained_state_mlp(data_dir: Path) -> pl.Trainer:
         args={
             "model": {"class_path": "GTStateMLP", "init_args": {"state_dim": state_dim}},
             "data": {"task": "block-insertion", "imagery": "oracle", "data_dir": str(data_dir)},
-            "trainer": {"max_steps": 2, "logger": False, "enable_progress_bar": False},
+            "trainer": {
+                "max_steps": 2,
+                "logger": False,
+                "enable_progress_bar": False,
+                # the caller saves the checkpoint it needs; none lands in the working directory
+                "enable_checkpointing": False,
+                "default_root_dir": str(data_dir),
+            },
         },
     )
     cli.trainer.fit(cli.model, train_dataloaders=DataLoader(StateBatches(state_dim), batch_size=2))
