@@ -5,9 +5,11 @@ import numpy as np
 import pytest
 import torch
 
+from nerf_transporter.data.datamodule import RavensDataModule
 from nerf_transporter.data.observation import SceneSpec
 from nerf_transporter.evaluation import rollout
 from nerf_transporter.evaluation.rollout import EpisodeResult, EvaluationSpec, Evaluator
+from nerf_transporter.evaluation.testing import evaluate_policy
 from nerf_transporter.sim import make_env
 
 UPRIGHT = np.array([0.0, 0.0, 0.0, 1.0])
@@ -237,3 +239,46 @@ def test_progress_bars_leave_no_carriage_returns_in_logs(capsys):
     with Evaluator(EvaluationSpec(task="block-insertion", imagery="oracle")) as evaluator:
         evaluator.run(FixedPolicy(), [1], progress=True)
     assert "\r" not in capsys.readouterr().err
+
+
+def test_imagery_options_test_a_policy_on_an_imagery_candidate(tmp_path):
+    """`evaluate-checkpoints --imagery-option`: the episode's NeRF imagery is fitted with the
+    candidate's settings over the training data's, cached under a key of its own, and the record
+    names them; on oracle views the options are refused."""
+    datamodule = RavensDataModule(
+        "block-insertion",
+        pixel_size=0.0125,
+        nerf_views=6,
+        nerf_image_size=(60, 80),
+        imagery_config={"iterations": 30, "sparsity_weight": 0.003},
+        data_dir=str(tmp_path / "data"),
+    )
+    records = {}
+    for name, options in (("training", None), ("candidate", {"iterations": 20})):
+        policy = FixedPolicy(input_kind="imagery")
+        records[name] = evaluate_policy(
+            policy,
+            datamodule,
+            [1],
+            split="test",
+            imagery_options=options,
+            cache_dir=str(tmp_path / "cache"),
+            workers=1,
+            progress=False,
+        )
+        records[name]["views"] = policy.observations[0]["imagery"]
+    spec = EvaluationSpec.from_datamodule(
+        datamodule, split="test", imagery_options={"iterations": 20}
+    )
+    assert spec.imagery_config().iterations == 20
+    assert spec.imagery_config().sparsity_weight == 0.003  # the training's other settings stay
+    assert len(list((tmp_path / "cache").rglob("*.npz"))) == 2  # two keys, two fits
+    assert not np.array_equal(
+        records["training"]["views"]["height"], records["candidate"]["views"]["height"]
+    )
+    assert "imagery_options" not in records["training"]
+    assert records["candidate"]["imagery_options"] == {"iterations": 20}
+    with pytest.raises(ValueError, match="set the NeRF imagery's fit; these views are oracle"):
+        EvaluationSpec.from_datamodule(
+            datamodule, split="test", imagery="oracle", imagery_options={"iterations": 20}
+        )

@@ -115,6 +115,7 @@ class EvaluationSpec(SceneConfig):
         split: str = "validation",
         setting: str | None = None,
         imagery: str | None = None,
+        imagery_options: dict[str, Any] | None = None,
         cache_dir: str | None = DEFAULT_CACHE_DIR,
     ) -> EvaluationSpec:
         """The spec matching the training data of a `RavensDataModule` (the scene of its
@@ -122,6 +123,9 @@ class EvaluationSpec(SceneConfig):
 
         `setting` defaults to the DataModule's `test_setting` for the test split (where it has
         one) and to its `setting` otherwise; `imagery` defaults to the training imagery.
+        `imagery_options` (`ImageryConfig` fields) replace those of the training imagery's fit, to
+        test a policy on another NeRF imagery (an imagery candidate); ValueError where the views
+        are not `nerf` imagery.
         """
         if datamodule is None or not hasattr(datamodule, "generation_config"):
             raise ValueError(
@@ -131,9 +135,17 @@ class EvaluationSpec(SceneConfig):
         scene = datamodule.generation_config(split, imagery=imagery).scene
         if setting is None and split == "test":
             setting = getattr(datamodule, "test_setting", None)
-        return cls(
-            scene=dataclasses.replace(scene, setting=setting or scene.setting), cache_dir=cache_dir
+        if imagery_options and scene.imagery != "nerf":
+            raise ValueError(
+                f"imagery options ({', '.join(sorted(imagery_options))}) set the NeRF imagery's "
+                f"fit; these views are {scene.imagery} imagery"
+            )
+        scene = dataclasses.replace(
+            scene,
+            setting=setting or scene.setting,
+            imagery_options={**scene.imagery_options, **(imagery_options or {})},
         )
+        return cls(scene=scene, cache_dir=cache_dir)
 
     def imagery_key(self) -> str:
         """Hash of everything the imagery of a seed depends on besides task, setting and seed

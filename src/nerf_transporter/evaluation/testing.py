@@ -126,6 +126,7 @@ def evaluate_policy(
     split: str,
     setting: str | None = None,
     imagery: str | None = None,
+    imagery_options: dict[str, Any] | None = None,
     cache_dir: str | None = DEFAULT_CACHE_DIR,
     workers: int | None = None,
     processes: int = 1,
@@ -138,7 +139,8 @@ def evaluate_policy(
     gather: Callable[[list[dict[str, Any]]], list[dict[str, Any]]] | None = None,
 ) -> dict[str, Any]:
     """The results record (`results_record`) of a policy on `seeds` of `split`: in the scene of its
-    DataModule (`EvaluationSpec.from_datamodule`, with `setting`, `imagery` and `cache_dir`), in
+    DataModule (`EvaluationSpec.from_datamodule`, with `setting`, `imagery`, `imagery_options`
+    and `cache_dir`; the record names the `imagery_options` where given), in
     `workers` processes on this process's share of the cores (`share_cores`, with `processes`
     processes evaluating side by side, as DDP ranks do), every episode recorded into `video_dir`
     where given. `evaluators` keeps the Evaluator open for the caller's next policy (default: one
@@ -146,7 +148,12 @@ def evaluate_policy(
     `global_step` name the policy in the record."""
     start = time.perf_counter()
     spec = EvaluationSpec.from_datamodule(
-        datamodule, split=split, setting=setting, imagery=imagery, cache_dir=cache_dir
+        datamodule,
+        split=split,
+        setting=setting,
+        imagery=imagery,
+        imagery_options=imagery_options,
+        cache_dir=cache_dir,
     )
     workers, threads = share_cores(len(seeds), workers, processes)
     with contextlib.nullcontext(evaluators) if evaluators is not None else Evaluators() as kept:
@@ -160,7 +167,7 @@ def evaluate_policy(
             video_dir=video_dir,
         )
     results = [episode.to_json() for episode in episodes]
-    return results_record(
+    record = results_record(
         gather(results) if gather else results,
         method=method,
         spec=spec,
@@ -170,6 +177,7 @@ def evaluate_policy(
         global_step=global_step,
         wall_s=time.perf_counter() - start,
     )
+    return record | ({"imagery_options": dict(imagery_options)} if imagery_options else {})
 
 
 def checkpoint_step(path: str | os.PathLike) -> int:

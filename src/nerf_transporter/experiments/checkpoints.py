@@ -28,6 +28,7 @@ import torch
 
 from nerf_transporter.atomic import check_writable, write_new_json
 from nerf_transporter.console import HelpFormatter
+from nerf_transporter.data.generate import imagery_option
 from nerf_transporter.data.observation import IMAGERY_KINDS
 from nerf_transporter.evaluation.metrics import cell
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, Evaluators
@@ -265,11 +266,14 @@ def evaluate_checkpoints(
     video_dir: Path | None = None,
     only: list[Path] | None = None,
     view_choice: str | None = None,
+    imagery_options: dict[str, Any] | None = None,
 ) -> list[dict]:
     """Evaluate every checkpoint of a run (or the `only` ones) on the first `episodes` seeds of
     `split`, in `workers` worker processes (default: one per available core; 1: in this process);
     with `video_dir`, every episode is recorded under `<video_dir>/<checkpoint>/`; `view_choice`
-    (mira) tests under that view-choice rule instead of the checkpoint's.
+    (mira) tests under that view-choice rule instead of the checkpoint's; `imagery_options`
+    (`ImageryConfig` fields) fit the NeRF imagery with those settings instead of the training
+    data's (an imagery candidate; the records are named with them).
 
     Before the first episode: a checkpoint naming other classes than this package's is refused
     (UntrustedCheckpointError), and the records' folder and `video_dir` must be writable
@@ -302,6 +306,7 @@ def evaluate_checkpoints(
                 split=split,
                 setting=setting,
                 imagery=imagery,
+                imagery_options=imagery_options,
                 cache_dir=cache_dir,
                 workers=workers,
                 checkpoint=str(path),
@@ -312,6 +317,7 @@ def evaluate_checkpoints(
                 evaluators=evaluators,
             )
             suffix = f"-{view_choice}" if view_choice else ""
+            suffix += "".join(f"-{k}{v}" for k, v in sorted((imagery_options or {}).items()))
             write_new_json(
                 run_dir / "evaluation", f"{path.stem}-{split}-{record['setting']}{suffix}", record
             )
@@ -376,6 +382,16 @@ def main(argv: list[str] | None = None) -> int:
         "view with the highest raw logit; view_softmax: MIRA's, each view's own softmax); the "
         "records are named with it",
     )
+    parser.add_argument(
+        "--imagery-option",
+        type=imagery_option,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="fit the NeRF imagery with this setting (an ImageryConfig field, as `generate "
+        "--imagery-option`) instead of the training data's, to test a policy on an imagery "
+        "candidate (repeatable); the records are named with them",
+    )
     parser.add_argument("--json", action="store_true", help="end with one JSON line")
     args = parser.parse_args(argv)
     if args.episodes < 1:
@@ -395,6 +411,7 @@ def main(argv: list[str] | None = None) -> int:
             video_dir=args.video,
             only=args.checkpoint,
             view_choice=args.view_choice,
+            imagery_options=dict(args.imagery_option),
         )
     except (FileNotFoundError, ValueError) as error:  # no checkpoint it can evaluate or write
         print(f"nerf-transporter evaluate-checkpoints: {error}", file=sys.stderr)
