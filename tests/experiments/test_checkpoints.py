@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from nerf_transporter.cli import main as cli_main
-from nerf_transporter.experiments.checkpoints import chosen_checkpoints
+from nerf_transporter.experiments.checkpoints import chosen_checkpoints, evaluated_validation
 from tests.helpers.state_run import trained_state_mlp
 
 
@@ -82,3 +82,27 @@ def test_eval_workers_must_be_positive(tmp_path, capsys):
         cli_main(["evaluate-checkpoints", str(tmp_path), "--eval-workers", "0"])
     assert exit_info.value.code == 2
     assert "--eval-workers must be >= 1" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("measured_under", "view_choice", "taken"),
+    [
+        ({}, "max_logit", True),
+        ({"test_time_options": {"view_choice": "view_softmax"}}, "view_softmax", True),
+        ({"test_time_options": {"view_choice": "view_softmax"}}, "max_logit", False),
+        ({}, "view_softmax", False),
+        ({"imagery_options": {"iterations": 20}}, "max_logit", False),
+    ],
+)
+def test_a_validation_record_stands_for_a_round_only_under_the_fits_own_settings(
+    tmp_path, measured_under, view_choice, taken
+):
+    """A fit validated after the fact (run-cell on a GPU fit) takes an `evaluate-checkpoints`
+    record as its round only where it was measured under the fit's view choice and imagery."""
+    checkpoint = tmp_path / "checkpoints" / "step000500.ckpt"
+    record = {"checkpoint": str(checkpoint), "split": "validation", "setting": "normal"}
+    record |= {"episodes": 20, "errors": 0, "success_rate": 0.25} | measured_under
+    (tmp_path / "evaluation").mkdir()
+    (tmp_path / "evaluation" / "step000500-validation-normal.json").write_text(json.dumps(record))
+    found = evaluated_validation(tmp_path, checkpoint, 20, "normal", view_choice)
+    assert (found == record) is taken and (found is None) is not taken

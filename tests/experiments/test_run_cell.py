@@ -632,7 +632,18 @@ def test_unwritable_folders_and_a_bad_lr_are_named_before_anything_runs(fakes):
     assert fakes.calls == [] and not Path("logs").exists()
 
 
-def test_a_finished_test_is_taken_again_when_only_the_cell_write_failed(fakes, monkeypatch):
+@pytest.mark.parametrize(
+    ("measured_under", "taken"),
+    [
+        ({}, True),
+        # an imagery candidate's test, or one under another view choice, is not the cell's
+        ({"imagery_options": {"iterations": 20}}, False),
+        ({"test_time_options": {"view_choice": "view_softmax"}}, False),
+    ],
+)
+def test_a_finished_test_is_taken_again_when_only_the_cell_write_failed(
+    fakes, monkeypatch, measured_under, taken
+):
     tested, write_json = [], cell_module.write_json
 
     def test_recorded(run_dir, split, episodes, *, only, **kwargs):
@@ -641,7 +652,7 @@ def test_a_finished_test_is_taken_again_when_only_the_cell_write_failed(fakes, m
         for record in records if split == "test" else []:
             tested.append(record["checkpoint"])
             record |= {"method": "mira", "task": "block-insertion", "imagery": "oracle"}
-            record |= {"wall_s": 5.0}
+            record |= {"wall_s": 5.0} | measured_under
             write_new_json(run_dir / "evaluation", f"{only[0].stem}-test-normal", record)
         return records
 
@@ -656,8 +667,9 @@ def test_a_finished_test_is_taken_again_when_only_the_cell_write_failed(fakes, m
         run()
     monkeypatch.setattr(cell_module, "write_json", write_json)
     _, stored = run()
-    assert len(tested) == 1 and len(fakes.calls) == 1 and stored["test_wall_s"] == 5.0
+    assert len(tested) == (1 if taken else 2) and len(fakes.calls) == 1
     assert (stored["episodes"], stored["successes"]) == (3, 2)
+    assert (stored["test_wall_s"] == 5.0) is taken  # the recorded test's time, or a new test's
 
 
 def test_a_fresh_fit_failing_before_a_checkpoint_leaves_no_run_folder_nor_config_file(

@@ -169,10 +169,11 @@ def validation_score(checkpoint: dict[str, Any]) -> float | None:
 
 
 def evaluated_validation(
-    run_dir: Path, checkpoint: Path, episodes: int, setting: str
+    run_dir: Path, checkpoint: Path, episodes: int, setting: str, view_choice: str = "max_logit"
 ) -> dict[str, Any] | None:
     """The first `evaluate_checkpoints` record of `checkpoint` in `run_dir/evaluation` on the first
-    `episodes` validation seeds of `setting`, or None."""
+    `episodes` validation seeds of `setting`, under the view choice `view_choice` (mira's; the
+    other methods have none) and the training's imagery settings, or None."""
     for path in sorted((run_dir / "evaluation").glob(f"{checkpoint.stem}-validation-*.json")):
         record = json.loads(path.read_text())
         if (
@@ -180,23 +181,26 @@ def evaluated_validation(
             and record.get("split") == "validation"
             and record.get("setting") == setting
             and record.get("episodes", 0) + record.get("errors", 0) == episodes
+            and not record.get("imagery_options")  # an imagery candidate's, not the training's
+            and record.get("test_time_options", {}).get("view_choice", "max_logit") == view_choice
         ):
             return record
     return None
 
 
 def validation_records(
-    run_dir: Path, episodes: int, setting: str | None = None
+    run_dir: Path, episodes: int, setting: str | None = None, view_choice: str = "max_logit"
 ) -> list[dict[str, Any]]:
     """One record per checkpoint of the run (by step): the validation success ModelCheckpoint
     stored with it; `errors` is 1 where that round had erred episodes (stored as -inf). With
     `setting`, a checkpoint saved without a round (by a fit without closed-loop validation, e.g.
-    on a machine without PyBullet) takes its `evaluated_validation` record instead, if any."""
+    on a machine without PyBullet) takes its `evaluated_validation` record (under `view_choice`)
+    instead, if any."""
     records = []
     for step, path in checkpoint_steps(run_dir):
         rate = validation_score(torch.load(path, map_location="cpu", weights_only=True, mmap=True))
         evaluated = (
-            evaluated_validation(run_dir, path, episodes, setting)
+            evaluated_validation(run_dir, path, episodes, setting, view_choice)
             if rate is None and setting
             else None
         )
@@ -316,7 +320,8 @@ def evaluate_checkpoints(
                 video_dir=video_dir / path.stem if video_dir else None,
                 evaluators=evaluators,
             )
-            suffix = f"-{view_choice}" if view_choice else ""
+            # named with what was asked beyond the training's: imagery, view choice, options
+            suffix = "".join(f"-{choice}" for choice in (imagery, view_choice) if choice)
             suffix += "".join(f"-{k}{v}" for k, v in sorted((imagery_options or {}).items()))
             write_new_json(
                 run_dir / "evaluation", f"{path.stem}-{split}-{record['setting']}{suffix}", record
@@ -358,7 +363,11 @@ def main(argv: list[str] | None = None) -> int:
         help="evaluate only this checkpoint of the run, a path or its file name "
         "(repeatable; default: every one)",
     )
-    parser.add_argument("--imagery", choices=IMAGERY_KINDS, help="default: as in training")
+    parser.add_argument(
+        "--imagery",
+        choices=IMAGERY_KINDS,
+        help="default: as in training; where given, the records are named with it",
+    )
     parser.add_argument("--setting", help="default: the training setting")
     parser.add_argument("--cache-dir", default=DEFAULT_CACHE_DIR, help="imagery cache")
     parser.add_argument("--device", default=None, help="torch device (default: cuda if present)")

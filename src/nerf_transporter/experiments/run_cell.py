@@ -532,8 +532,9 @@ def finished_test(
     run_dir: Path, checkpoint: Path, protocol: dict[str, Any]
 ) -> dict[str, Any] | None:
     """A test record of `checkpoint` in the run's `evaluation/` on the protocol's test seeds,
-    without erred episodes, of this world (`load_record`): the test of a run whose cell could not
-    be written. None where there is none."""
+    without erred episodes, of this world (`load_record`), under the protocol's view choice and
+    the training's imagery settings: the test of a run whose cell could not be written. None
+    where there is none."""
     seeds = [split_seed("test", index) for index in range(protocol["test_episodes"])]
     identity = (protocol["method"], protocol["setting"], protocol["imagery"])
     for path in sorted((run_dir / "evaluation").glob(f"{checkpoint.stem}-test-*.json")):
@@ -546,6 +547,9 @@ def finished_test(
             and Path(record.get("checkpoint") or "").name == checkpoint.name
             and (record["method"], record["setting"], record.get("imagery")) == identity
             and not record.get("errors")
+            and not record.get("imagery_options")  # an imagery candidate's test, not the cell's
+            and record.get("test_time_options", {}).get("view_choice", "max_logit")
+            == protocol.get("view_choice", PROTOCOL_KEYS_BY_DEFAULT["model", "view_choice"])
             and [episode["seed"] for episode in record.get("episode_results", [])] == seeds
             and isinstance(record.get("wall_s"), int | float)
         ):
@@ -732,7 +736,8 @@ def validate(
     """The run's validation rounds (`validation_records`), after running closed loop here the
     rounds its fit could not (checkpoints at validation steps saved without a score)."""
     episodes, setting = protocol["validation_episodes"], protocol["setting"]
-    records = validation_records(run_dir, episodes, setting)
+    view_choice = protocol.get("view_choice", PROTOCOL_KEYS_BY_DEFAULT["model", "view_choice"])
+    records = validation_records(run_dir, episodes, setting, view_choice)
     done = {record["global_step"] for record in records}
     every, steps = protocol["validation_every"], protocol["steps"]
     pending = [
@@ -749,7 +754,7 @@ def validate(
             device=torch.device(device),
             workers=workers,
         )
-        records = validation_records(run_dir, episodes, setting)
+        records = validation_records(run_dir, episodes, setting, view_choice)
     return records
 
 
