@@ -1,11 +1,14 @@
-"""Success of hanging-disks cells by the colour of each test scene's disk.
+"""Success and missed picks of hanging-disks cells by the colour of each test scene's disk.
 
 hanging-disks draws the disk's colour from the anchor's training colours for training and
 validation seeds and from its evaluation colours for test seeds, four of which no training seed
 has (`sim/tasks/hanging_disks.py`); the stand is always brown. This replays each test seed's reset
 (no robot motion) to read the colour it drew, and breaks every cell's recorded test outcomes down
-by the disk's colour, to show which colours a policy misses. The cells must be of this checkout's
-world, whose seeds build the scenes replayed here.
+by the disk's colour, to show which colours a policy misses: each entry is the successes over the
+episodes and, in brackets, the picks that touched nothing (the episode's failure "pick: the suction
+tip touched no movable object"). Test records of `evaluate-checkpoints` (one checkpoint on
+another imagery, `--imagery oracle` or `--imagery-option ...`) are rows too, named by their file.
+The cells must be of this checkout's world, whose seeds build the scenes replayed here.
 
     OMP_NUM_THREADS=1 PYTHONPATH=src python benchmarks/hanging_disk_colours.py \
         results/hanging-disks/*.json [--json]
@@ -26,6 +29,7 @@ from nerf_transporter.sim import make_env
 from nerf_transporter.sim.tasks.hanging_disks import TEST_COLORS
 
 TASK = "hanging-disks"
+MISSED_PICK = "pick: the suction tip touched no movable object"
 
 
 def scene_colours(seeds: list[int]) -> dict[int, dict[str, str]]:
@@ -43,7 +47,11 @@ def scene_colours(seeds: list[int]) -> dict[int, dict[str, str]]:
 
 def cell_label(cell: dict) -> str:
     """The cell's row, with `+colour` where it was trained with colour augmentation and its
-    training steps and learning rate where it was (a sweep's cells differ in those)."""
+    training steps and learning rate where it was (a sweep's cells differ in those); a test
+    record's row is its file's name and the imagery it was tested on."""
+    if "protocol" not in cell:
+        options = "".join(f" {k}={v}" for k, v in sorted(cell.get("imagery_options", {}).items()))
+        return f"{Path(cell['path']).stem} ({cell['imagery']} imagery{options})"
     row = f"{cell['method']}-oracle" if cell.get("imagery") == "oracle" else cell["method"]
     protocol = cell["protocol"]
     if not protocol.get("colour_augment"):
@@ -52,12 +60,16 @@ def cell_label(cell: dict) -> str:
 
 
 def by_disk_colour(cell: dict, colours: dict[int, dict[str, str]]) -> dict[str, list[int]]:
-    """disk colour -> [successes, episodes] over the cell's test episodes."""
-    counts = {colour: [0, 0] for colour in TEST_COLORS}
-    for seed, success in seed_outcomes(cell).items():
-        tally = counts[colours[seed]["disk"]]
-        tally[0] += int(success)
+    """disk colour -> [successes, episodes, missed picks] over the cell's test episodes (erred
+    episodes left out)."""
+    counts = {colour: [0, 0, 0] for colour in TEST_COLORS}
+    for episode in cell["episode_results"]:
+        if episode.get("error"):
+            continue
+        tally = counts[colours[episode["seed"]]["disk"]]
+        tally[0] += int(episode["success"])
         tally[1] += 1
+        tally[2] += int(episode.get("failure") == MISSED_PICK)
     return counts
 
 
@@ -84,9 +96,9 @@ def main(argv: list[str] | None = None) -> int:
     summary = []
     for cell in cells:
         counts = by_disk_colour(cell, colours)
-        wins = sum(s for s, _ in counts.values())
-        parts = " | ".join(f"{s}/{n}" for s, n in counts.values())
-        print(f"| {cell_label(cell)} | {wins}/{len(seed_outcomes(cell))} | {parts} |")
+        wins, missed = (sum(tally[k] for tally in counts.values()) for k in (0, 2))
+        parts = " | ".join(f"{s}/{n} ({m})" for s, n, m in counts.values())
+        print(f"| {cell_label(cell)} | {wins}/{len(seed_outcomes(cell))} ({missed}) | {parts} |")
         summary.append({"cell": str(cell["path"]), "label": cell_label(cell), "by_disk": counts})
     if args.json:
         print(json.dumps({"colours": {str(s): colours[s] for s in seeds}, "cells": summary}))

@@ -49,7 +49,7 @@ import numpy as np
 import torch
 
 from nerf_transporter import geometry, splits
-from nerf_transporter.data.generate import imagery_option
+from nerf_transporter.data.generate import add_imagery_option_argument
 from nerf_transporter.device_info import describe_device, device_line
 from nerf_transporter.imagery import (
     ImageryConfig,
@@ -295,13 +295,8 @@ def main(argv: list[str] | None = None) -> int:
         "replaces --task)",
     )
     parser.add_argument("--iterations", type=int, default=None, help="override the fit iterations")
-    parser.add_argument(
-        "--imagery-option",
-        type=imagery_option,
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="an ImageryConfig field for the fit (repeatable), as `generate --imagery-option`",
+    add_imagery_option_argument(
+        parser, "an ImageryConfig field for the fit (repeatable), as `generate --imagery-option`"
     )
     parser.add_argument(
         "--rig",

@@ -15,6 +15,7 @@ def test_test_scenes_draw_the_evaluation_colours_and_each_outcome_is_counted_onc
     assert colours == script.scene_colours(seeds)  # a function of the seed
     assert all(c["disk"] in TEST_COLORS and c["stand"] == "brown" for c in colours.values())
     results = [{"seed": s, "success": s in (1, 7), "error": None} for s in seeds]
+    results[1]["failure"] = script.MISSED_PICK  # seed 3's pick touched nothing
     results.append({"seed": 13, "success": False, "error": "RuntimeError: cache"})  # left out
     identity = {"task": "hanging-disks", "setting": "normal", "method": "transporter_se2"}
     identity |= {"imagery": None}
@@ -36,17 +37,27 @@ def test_test_scenes_draw_the_evaluation_colours_and_each_outcome_is_counted_onc
         "blue",
     ]
     assert counts == {
-        "blue": [0, 1],
-        "red": [0, 0],
-        "green": [0, 1],
-        "orange": [1, 1],
-        "purple": [0, 1],
-        "pink": [0, 1],
-        "white": [1, 1],
+        "blue": [0, 1, 0],
+        "red": [0, 0, 0],
+        "green": [0, 1, 0],
+        "orange": [1, 1, 0],
+        "purple": [0, 1, 0],
+        "pink": [0, 1, 1],
+        "white": [1, 1, 0],
     }
     path = tmp_path / "transporter_se2.json"
     path.write_text(json.dumps(cell))
     assert script.main([str(path), "--json"]) == 0
     out = capsys.readouterr().out
-    assert "| transporter_se2 +colour (6000 steps, lr 0.0003) | 2/6 |" in out
+    assert "| transporter_se2 +colour (6000 steps, lr 0.0003) | 2/6 (1) |" in out
+    assert "| 0/1 (1) |" in out  # the pink disk's one episode, its pick missed
     assert json.loads(out.splitlines()[-1])["cells"][0]["by_disk"] == counts
+
+
+def test_a_test_record_is_a_row_named_by_its_file_and_imagery(tmp_path):
+    script = load_benchmark("hanging_disk_colours")
+    record = {"path": tmp_path / "step002000-test-normal-nerf-sparsity_weight0.0003.json"}
+    record |= {"imagery": "nerf", "imagery_options": {"sparsity_weight": 0.0003}}
+    assert script.cell_label(record) == (
+        "step002000-test-normal-nerf-sparsity_weight0.0003 (nerf imagery sparsity_weight=0.0003)"
+    )

@@ -441,6 +441,18 @@ def imagery_option(text: str) -> tuple[str, Any]:
     return key, type(default)(value) if default is not None else value
 
 
+def add_imagery_option_argument(parser: argparse.ArgumentParser, help: str) -> None:
+    """`--imagery-option KEY=VALUE` (repeatable; `imagery_option`), collected in a list."""
+    parser.add_argument(
+        "--imagery-option",
+        type=imagery_option,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help=help,
+    )
+
+
 def _image_size(text: str) -> tuple[int, int]:
     rows, _, cols = text.partition("x")
     return int(rows), int(cols)
@@ -472,14 +484,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--nerf-image-size", type=_image_size, default=cameras.IMAGE_SIZE, help="ROWSxCOLS"
     )
-    parser.add_argument(
-        "--imagery-option",
-        type=imagery_option,
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="an ImageryConfig field for --imagery nerf (repeatable)",
-    )
+    add_imagery_option_argument(parser, "an ImageryConfig field for --imagery nerf (repeatable)")
     parser.add_argument(
         "--regenerate",
         action="store_true",

@@ -28,7 +28,7 @@ import torch
 
 from nerf_transporter.atomic import check_writable, write_new_json
 from nerf_transporter.console import HelpFormatter
-from nerf_transporter.data.generate import imagery_option
+from nerf_transporter.data.generate import add_imagery_option_argument
 from nerf_transporter.data.observation import IMAGERY_KINDS
 from nerf_transporter.evaluation.metrics import cell
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, Evaluators
@@ -391,13 +391,9 @@ def main(argv: list[str] | None = None) -> int:
         "view with the highest raw logit; view_softmax: MIRA's, each view's own softmax); the "
         "records are named with it",
     )
-    parser.add_argument(
-        "--imagery-option",
-        type=imagery_option,
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="fit the NeRF imagery with this setting (an ImageryConfig field, as `generate "
+    add_imagery_option_argument(
+        parser,
+        "fit the NeRF imagery with this setting (an ImageryConfig field, as `generate "
         "--imagery-option`) instead of the training data's, to test a policy on an imagery "
         "candidate (repeatable); the records are named with them",
     )
