@@ -11,7 +11,7 @@ another imagery, `--imagery oracle` or `--imagery-option ...`) are rows too, nam
 The cells must be of this checkout's world, whose seeds build the scenes replayed here.
 
     OMP_NUM_THREADS=1 PYTHONPATH=src python benchmarks/hanging_disk_colours.py \
-        results/hanging-disks/*.json [--json]
+        results/hanging-disks/*.json [--seeds 60] [--json]
 
 docs/failures.md reports and reads these figures.
 """
@@ -81,6 +81,13 @@ def main(argv: list[str] | None = None) -> int:
         nargs="+",
         help="hanging-disks cell files or folders, or test record files",
     )
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        default=None,
+        help="only the test seeds below this one in every row (e.g. 60: the first 30 test "
+        "seeds), to set a cell beside a record of its first episodes",
+    )
     parser.add_argument("--json", action="store_true", help="end with one JSON line")
     args = parser.parse_args(argv)
     cells, test_records = load_records(args.cells)
@@ -88,6 +95,12 @@ def main(argv: list[str] | None = None) -> int:
     if not cells:
         print(f"no {TASK} cells among {', '.join(map(str, args.cells))}", file=sys.stderr)
         return 1
+    if args.seeds is not None:
+        cells = [
+            cell
+            | {"episode_results": [e for e in cell["episode_results"] if e["seed"] < args.seeds]}
+            for cell in cells
+        ]
     seeds = sorted({seed for cell in cells for seed in seed_outcomes(cell)})
     colours = scene_colours(seeds)
     scenes = {c: sum(colours[s]["disk"] == c for s in seeds) for c in TEST_COLORS}

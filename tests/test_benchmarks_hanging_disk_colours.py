@@ -52,6 +52,10 @@ def test_test_scenes_draw_the_evaluation_colours_and_each_outcome_is_counted_onc
     assert "| transporter_se2 +colour (6000 steps, lr 0.0003) | 2/6 (1) |" in out
     assert "| 0/1 (1) |" in out  # the pink disk's one episode, its pick missed
     assert json.loads(out.splitlines()[-1])["cells"][0]["by_disk"] == counts
+    assert script.main([str(path), "--seeds", "5"]) == 0  # seeds 1 and 3 only
+    assert (
+        "| transporter_se2 +colour (6000 steps, lr 0.0003) | 1/2 (1) |" in capsys.readouterr().out
+    )
 
 
 def test_a_test_record_is_a_row_named_by_its_file_and_imagery(tmp_path):
