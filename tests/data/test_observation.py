@@ -53,6 +53,19 @@ def test_runtime_imagery_options_change_neither_the_dataset_nor_the_cache_key():
     assert fast.imagery_description()["iterations"] == ImageryConfig().iterations
 
 
+def test_an_imagery_setting_at_its_old_behaviour_keeps_every_dataset_and_cache_key():
+    """colour_init came after the datasets and caches were built under its "grey": at that value
+    it is left out of their descriptions; another value is another dataset and cache entry."""
+    plain = SceneSpec("block-insertion", pixel_size=PIXEL)
+    grey = SceneSpec("block-insertion", pixel_size=PIXEL, imagery_options={"colour_init": "grey"})
+    table = SceneSpec("block-insertion", pixel_size=PIXEL, imagery_options={"colour_init": "table"})
+    assert "colour_init" not in plain.imagery_description()
+    assert grey.imagery_description() == plain.imagery_description()
+    assert table.imagery_description() == plain.imagery_description() | {"colour_init": "table"}
+    keys = {EvaluationSpec(scene=scene).imagery_key() for scene in (plain, grey, table)}
+    assert len(keys) == 2
+
+
 def test_bad_scenes_are_refused():
     with pytest.raises(ValueError, match="imagery config pixel_size 0.003125 differs"):
         SceneSpec("block-insertion", pixel_size=PIXEL, imagery_options={"pixel_size": 0.003125})

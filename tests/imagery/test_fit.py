@@ -133,6 +133,25 @@ def test_bad_shapes_and_config_are_rejected(scene_and_views):
         fit_scene(images, intrinsics[:3], poses, tiny_config())
     with pytest.raises(ValueError, match="unknown field type"):
         ImageryConfig(field="mlp")
+    with pytest.raises(ValueError, match="unknown colour_init 'white'"):
+        ImageryConfig(colour_init="white")
+    with pytest.raises(ValueError, match="colour_init 'table' is for the dense field only"):
+        ImageryConfig(field="hash", colour_init="table")
+
+
+@pytest.mark.parametrize(("colour_init", "grey"), [("grey", True), ("table", False)])
+def test_the_field_starts_grey_or_at_the_tables_colour(scene_and_views, colour_init, grey):
+    """colour_init="table": before any step the field's colour is the captures' median colour
+    (the floor map's start), so that density changes no rendered colour; "grey": 0.5."""
+    _, images, intrinsics, poses = scene_and_views
+    frozen = dict(learning_rate=0.0, density_learning_rate=0.0, floor_learning_rate=0.0)
+    config = tiny_config(iterations=1, colour_init=colour_init, **frozen)
+    fitted = fit_scene(images, intrinsics, poses, config)
+    points = torch.tensor([[0.5, 0.0, 0.05], [0.3, -0.2, 0.1]])
+    start = fitted.floor(points)  # never trained: the median colour everywhere
+    assert not torch.allclose(start, torch.full_like(start, 0.5), atol=0.05)
+    expected = torch.full_like(start, 0.5) if grey else start
+    torch.testing.assert_close(fitted.field.colour(points), expected, atol=1e-4, rtol=0)
 
 
 def test_auto_device_is_cpu_without_cuda(monkeypatch):

@@ -34,6 +34,10 @@ INPUT_KINDS = ("imagery", "heightmap", "state")  # what a method reads (its `inp
 IMAGERY_KINDS = ("nerf", "oracle")
 # ImageryConfig fields that change how fast imagery is built, not what it is
 IMAGERY_RUNTIME_FIELDS = ("device", "progress", "threads", "render_batch")
+# imagery settings that enter a description only where they differ from these values (every
+# dataset, cache entry and cell was built under them before the setting existed), so that those
+# keep their identities
+IMAGERY_OPTIONS_BY_DEFAULT = {"colour_init": "grey"}
 
 
 @dataclass(frozen=True)
@@ -100,9 +104,15 @@ class SceneSpec:
         )
 
     def imagery_description(self) -> dict[str, Any]:
-        """The `nerf` imagery config without the fields that only change how fast it is built."""
+        """The `nerf` imagery config without the fields that only change how fast it is built, nor
+        those of `IMAGERY_OPTIONS_BY_DEFAULT` at their default."""
         config = dataclasses.asdict(self.imagery_config())
-        return {key: value for key, value in config.items() if key not in IMAGERY_RUNTIME_FIELDS}
+        return {
+            key: value
+            for key, value in config.items()
+            if key not in IMAGERY_RUNTIME_FIELDS
+            and not (key in IMAGERY_OPTIONS_BY_DEFAULT and value == IMAGERY_OPTIONS_BY_DEFAULT[key])
+        }
 
 
 class SceneConfig:

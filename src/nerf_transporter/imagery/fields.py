@@ -50,6 +50,11 @@ def sample_grid(grid: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     return values.view(splits, channels, -1).permute(0, 2, 1).reshape(padded, channels)[:count]
 
 
+def colour_logits(colour: torch.Tensor) -> torch.Tensor:
+    """The raw values whose sigmoid is `colour` (RGB, kept 0.02 from 0 and 1 to stay trainable)."""
+    return torch.logit(colour.float().clamp(0.02, 0.98))
+
+
 def thickness_shift(initial_thickness: float) -> float:
     """Bias so that softplus(0 + shift) equals the initial optical thickness per voxel."""
     return math.log(math.expm1(initial_thickness))
@@ -93,7 +98,9 @@ class DenseGridField(RadianceField):
         colour_downscale: int = 2,
         initial_thickness: float = 0.05,
         initial_scale: int = 1,
+        initial_colour: torch.Tensor | None = None,
     ) -> None:
+        """`initial_colour` (RGB in (0, 1)) fills the colour grid; default grey (0.5)."""
         super().__init__()
         self.voxels = voxels
         self.voxel_size = voxel_size
@@ -101,9 +108,11 @@ class DenseGridField(RadianceField):
         self.shift = thickness_shift(initial_thickness)
         self.scale = initial_scale
         self.density_grid = nn.Parameter(torch.zeros(self._shape(initial_scale, 1)))
-        self.colour_grid = nn.Parameter(
-            torch.zeros(self._shape(initial_scale, 3, colour_downscale))
-        )
+        start = torch.zeros(1, 3, 1, 1, 1)
+        if initial_colour is not None:
+            start = colour_logits(initial_colour).view(1, 3, 1, 1, 1)
+        shape = self._shape(initial_scale, 3, colour_downscale)
+        self.colour_grid = nn.Parameter(start.expand(shape).clone())
 
     def _shape(self, scale: int, channels: int, extra: int = 1) -> tuple[int, ...]:
         nx, ny, nz = (max(2, v // (scale * extra)) + 1 for v in self.voxels)
@@ -236,7 +245,7 @@ class FloorMap(nn.Module):
         nx, ny = (int(round(e / cell_size)) + 1 for e in BOX_EXTENT[:2])
         start = torch.zeros(1, 3, 1, 1)
         if colour is not None:
-            start = torch.logit(colour.float().clamp(0.02, 0.98)).view(1, 3, 1, 1)
+            start = colour_logits(colour).view(1, 3, 1, 1)
         self.image = nn.Parameter(start.expand(1, 3, ny, nx).clone())
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:

@@ -29,6 +29,7 @@ from nerf_transporter.imagery.render import MarchSettings, render_rays, render_r
 from nerf_transporter.imagery.samplers import OccupancyGrid
 
 FIELD_TYPES = ("dense", "hash")
+COLOUR_INITS = ("grey", "table")  # ImageryConfig.colour_init
 
 
 class NonFiniteLossError(FloatingPointError):
@@ -74,6 +75,11 @@ class ImageryConfig:
     binary_weight: float = 0.1  # times the entropy of the floor's share of each ray
     binary_ramp: float = 0.25  # fraction of the iterations over which binary_weight ramps up
     floor_smoothness_weight: float = 0.01  # times the mean squared colour step of the floor map
+    # the dense field's starting colour: "grey" (0.5), or "table": the captures' median colour,
+    # the floor map's start, so that density costs the colour loss nothing until the field's colour
+    # is learned (under grey, objects brighter than grey on a bright table, a white or pink disk,
+    # are driven out of the field before their colour is, and left painted on the floor)
+    colour_init: str = "grey"
     final_learning_rate_factor: float = 0.1  # exponential decay of the learning rate to this factor
     pixel_size: float = geometry.PIXEL_SIZE  # of the rendered orthographic views
     render_batch: int = (
@@ -85,6 +91,12 @@ class ImageryConfig:
     def __post_init__(self) -> None:
         if self.field not in FIELD_TYPES:
             raise ValueError(f"unknown field type {self.field!r}; expected one of {FIELD_TYPES}")
+        if self.colour_init not in COLOUR_INITS:
+            raise ValueError(
+                f"unknown colour_init {self.colour_init!r}; expected one of {COLOUR_INITS}"
+            )
+        if self.colour_init != "grey" and self.field != "dense":
+            raise ValueError(f"colour_init {self.colour_init!r} is for the dense field only")
         if len(self.stage_scales) != len(self.stage_starts):
             raise ValueError("stage_scales and stage_starts must have the same length")
         for name in ("iterations", "batch_rays", "image_downscale", "samples_per_segment"):
@@ -139,8 +151,9 @@ def resolve_device(name: str = "auto") -> torch.device:
     return torch.device(name)
 
 
-def make_field(config: ImageryConfig) -> RadianceField:
-    """The radiance field the config names, at its first coarse-to-fine stage."""
+def make_field(config: ImageryConfig, table_colour: torch.Tensor | None = None) -> RadianceField:
+    """The radiance field the config names, at its first coarse-to-fine stage; with
+    `colour_init="table"` the dense field starts at `table_colour` (RGB in (0, 1))."""
     if config.field == "hash":
         voxels = config.voxels
         occupancy = tuple(v // config.occupancy_cell * 2 for v in voxels)
@@ -155,6 +168,7 @@ def make_field(config: ImageryConfig) -> RadianceField:
         colour_downscale=config.colour_downscale,
         initial_thickness=config.initial_thickness,
         initial_scale=config.stage_scales[0],
+        initial_colour=table_colour if config.colour_init == "table" else None,
     )
 
 
@@ -288,11 +302,11 @@ def _fit_scene(
         raise ValueError("no camera ray crosses the workspace box down to its floor")
     flat_pixels = pixels.view(-1, 3)
 
-    field_ = make_field(config).to(device)
-    floor_colour = (
-        flat_pixels[candidates[:: max(1, candidates.numel() // 65536)]].median(dim=0).values
+    table_colour = (
+        flat_pixels[candidates[:: max(1, candidates.numel() // 65536)]].median(dim=0).values.cpu()
     )
-    floor = FloorMap(config.floor_cell, floor_colour.cpu()).to(device)
+    field_ = make_field(config, table_colour).to(device)
+    floor = FloorMap(config.floor_cell, table_colour).to(device)
     occupancy = OccupancyGrid(
         tuple(v // config.occupancy_cell for v in config.voxels), device=device
     )
