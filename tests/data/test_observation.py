@@ -1,6 +1,8 @@
 """One scene spec behind the generator's config and the evaluator's spec, and one observation
 builder: a seed generated for training and the same seed evaluated are seen alike."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -64,6 +66,11 @@ def test_an_imagery_setting_at_its_old_behaviour_keeps_every_dataset_and_cache_k
     assert table.imagery_description() == plain.imagery_description() | {"colour_init": "table"}
     keys = {EvaluationSpec(scene=scene).imagery_key() for scene in (plain, grey, table)}
     assert len(keys) == 2
+    # and another dataset, beside the default's: named with a hash of the changed settings
+    names = [GenerationConfig(scene=scene).dataset_name() for scene in (plain, grey, table)]
+    assert names[0] == names[1] == "block-insertion-normal-train-px0.0125"
+    assert re.fullmatch(r"block-insertion-normal-train-px0\.0125-imagery[0-9a-f]{8}", names[2])
+    assert table.imagery_changes() == {"colour_init": "table"} and plain.imagery_changes() == {}
 
 
 def test_bad_scenes_are_refused():

@@ -23,6 +23,8 @@ from __future__ import annotations
 import argparse
 import concurrent.futures as cf
 import dataclasses
+import hashlib
+import json
 import math
 import os
 import sys
@@ -82,12 +84,17 @@ class GenerationConfig(SceneConfig):
         object.__setattr__(self, "split", split)
 
     def dataset_name(self) -> str:
-        """<task>-<setting>-<split>, with -oracle and -px<size> for non-default imagery or pixels."""
+        """<task>-<setting>-<split>, with -oracle and -px<size> for non-default imagery or pixels,
+        and -imagery<hash> for NeRF imagery settings other than the default's (a hash of those
+        changes: an imagery candidate's data sits beside the default's)."""
         name = f"{self.task}-{self.setting}-{self.split}"
         if self.imagery != "nerf":
             name += f"-{self.imagery}"
         if not math.isclose(self.pixel_size, g.PIXEL_SIZE):
             name += f"-px{self.pixel_size:g}"
+        if changes := self.scene.imagery_changes():
+            text = json.dumps(changes, sort_keys=True)
+            name += f"-imagery{hashlib.sha256(text.encode()).hexdigest()[:8]}"
         return name
 
     def description(self) -> dict[str, Any]:

@@ -103,6 +103,14 @@ class SceneSpec:
             **{**self.imagery_options, "pixel_size": self.pixel_size, "progress": False}
         )
 
+    def imagery_changes(self) -> dict[str, Any]:
+        """The entries of `imagery_description` that differ from the default imagery's (at the
+        scene's pixel size); {} for oracle imagery."""
+        if self.imagery != "nerf":
+            return {}
+        default = dataclasses.replace(self, imagery_options={}).imagery_description()
+        return {k: v for k, v in self.imagery_description().items() if default.get(k) != v}
+
     def imagery_description(self) -> dict[str, Any]:
         """The `nerf` imagery config without the fields that only change how fast it is built, nor
         those of `IMAGERY_OPTIONS_BY_DEFAULT` at their default."""
