@@ -313,3 +313,18 @@ def test_the_shared_recipe_knobs_stack_on_transporter_se2():
     assert type(cli.model).__name__ == "TransporterSE2"
     shared = [key for key in MIRA_RECIPE if key.startswith("data.")]
     assert {key: config[key] for key in shared} == {key: MIRA_RECIPE[key] for key in shared}
+
+
+def test_the_imagery_candidate_overlay_trains_on_data_of_its_own():
+    _, default = resolve("hanging_disks.yaml")
+    _, candidate = resolve("hanging_disks.yaml", "imagery/table_start.yaml")
+    scene = candidate.datamodule.generation_config("train").scene
+    assert (scene.imagery_config().colour_init, scene.imagery_config().sparsity_weight) == (
+        "table",
+        0.0003,
+    )
+    names = [
+        cli.datamodule.generation_config("train").dataset_name() for cli in (default, candidate)
+    ]
+    assert names[0] == "hanging-disks-normal-train"
+    assert names[1].startswith("hanging-disks-normal-train-imagery")
