@@ -157,8 +157,12 @@ def test_a_checkpoint_is_shipped_only_with_the_record_of_its_own_test(checkout, 
             ),
             "is not an error-free test with its episodes (1 episodes, 1 erred)",
         ),
+        (
+            lambda r: r.update(imagery_options={"colour_init": "table"}),
+            "tested the policy on an imagery candidate (colour_init=table)",
+        ),
     ],
-    ids=["counts", "another-world", "validation", "erred"],
+    ids=["counts", "another-world", "validation", "erred", "imagery-candidate"],
 )
 def test_a_record_the_cell_loader_refuses_is_not_shipped(checkout, capsys, edit, problem):
     root, checkpoint, record = checkout

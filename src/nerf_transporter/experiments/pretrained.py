@@ -181,7 +181,7 @@ def tested_checkpoint_hash(record: dict[str, Any]) -> str:
 
 def check_test_of(record: dict[str, Any], checkpoint: Path) -> None:
     """ValueError unless `record` is an error-free test, with its episodes, of `checkpoint`
-    itself (by content: `tested_checkpoint_hash`)."""
+    itself (by content: `tested_checkpoint_hash`), on the imagery it was trained on."""
     where = record["path"]
     if record["errors"] or not record["episodes"] or not record.get("episode_results"):
         raise ValueError(
@@ -192,6 +192,12 @@ def check_test_of(record: dict[str, Any], checkpoint: Path) -> None:
         raise ValueError(
             f"{where} tests another checkpoint than {checkpoint} (their contents differ); export "
             "the checkpoint together with the record of its own test"
+        )
+    if record.get("imagery_options"):
+        options = ", ".join(f"{k}={v}" for k, v in sorted(record["imagery_options"].items()))
+        raise ValueError(
+            f"{where} tested the policy on an imagery candidate ({options}), not on the imagery "
+            "it was trained on; export it with the record of a test on its own imagery"
         )
 
 
