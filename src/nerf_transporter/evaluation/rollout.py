@@ -138,7 +138,8 @@ class EvaluationSpec(SceneConfig):
         if imagery_options and scene.imagery != "nerf":
             raise ValueError(
                 f"imagery options ({', '.join(sorted(imagery_options))}) set the NeRF imagery's "
-                f"fit; these views are {scene.imagery} imagery"
+                f"fit; these views are {scene.imagery} imagery (ask for nerf imagery: "
+                "`--imagery nerf`)"
             )
         scene = dataclasses.replace(
             scene,
