@@ -8,6 +8,7 @@ import pytest
 
 from nerf_transporter import geometry as g
 from nerf_transporter.data import episode as ep
+from nerf_transporter.data import observation as observation_module
 from nerf_transporter.data.generate import GenerationConfig, generate_dataset
 from nerf_transporter.data.heightmap import heightmap_from_rgbd
 from nerf_transporter.data.observation import SceneSpec, observation
@@ -71,6 +72,18 @@ def test_an_imagery_setting_at_its_old_behaviour_keeps_every_dataset_and_cache_k
     assert names[0] == names[1] == "block-insertion-normal-train-px0.0125"
     assert re.fullmatch(r"block-insertion-normal-train-px0\.0125-imagery[0-9a-f]{8}", names[2])
     assert table.imagery_changes() == {"colour_init": "table"} and plain.imagery_changes() == {}
+
+
+def test_a_changed_imagery_default_names_data_of_its_own(monkeypatch):
+    """The reference imagery, not the code's defaults, names the data: were a default of the
+    imagery's settings changed, the data built with it would not take the reference's name."""
+    plain = SceneSpec("block-insertion", pixel_size=PIXEL)
+    reference_name = GenerationConfig(scene=plain).dataset_name()
+    monkeypatch.setitem(observation_module.REFERENCE_IMAGERY, "iterations", 300)
+    assert plain.imagery_changes() == {"iterations": ImageryConfig().iterations}
+    assert GenerationConfig(scene=plain).dataset_name().startswith(f"{reference_name}-imagery")
+    monkeypatch.setitem(observation_module.REFERENCE_IMAGERY, "stage_scales", (8, 2, 1))
+    assert plain.imagery_changes()["stage_scales"] == [4, 2, 1]  # as JSON gives it back
 
 
 def test_bad_scenes_are_refused():

@@ -16,6 +16,7 @@ import torch
 import yaml
 
 from nerf_transporter.atomic import write_new_json
+from nerf_transporter.data import observation
 from nerf_transporter.data.datamodule import RavensDataModule
 from nerf_transporter.device_info import describe_device
 from nerf_transporter.evaluation.metrics import summarize
@@ -830,6 +831,39 @@ def test_colour_augmentation_is_a_protocol_of_its_own_and_its_absence_changes_no
     recoloured = cell_module.cell_protocol(CONFIG | {"data": data}, "mira", "imagery")
     assert recoloured == protocol | {"colour_augment": True}
     assert cell_module.protocol_id(recoloured) != cell_module.protocol_id(protocol)
+
+
+def test_nerf_imagery_settings_other_than_the_reference_are_a_protocol_of_their_own(
+    fakes, monkeypatch
+):
+    """An imagery overlay and a changed default of the imagery's settings alike: a cell records
+    the imagery it was measured on, so a cell of the reference imagery stays what it was."""
+    monkeypatch.setattr(cell_module, "resolve_config", real_config)
+    path, record = run(imagery="nerf")
+    assert "imagery_changes" not in record["protocol"]
+    candidate = cell_module.cell_protocol(
+        real_config(
+            cell_module.config_files(REPO / "configs", "block-insertion", "normal", "mira")
+            + [REPO / "configs" / "imagery" / "table_start.yaml"]
+        ),
+        "mira",
+        "imagery",
+    )
+    assert candidate["imagery_changes"] == {"colour_init": "table", "sparsity_weight": 0.0003}
+    assert "training" not in candidate  # named once, as imagery
+    # the code's default iterations (400) no longer the reference's: every NeRF fit is another
+    monkeypatch.setitem(observation.REFERENCE_IMAGERY, "iterations", 300)
+    assert cell_module.stored_protocol(load_cell(path), "imagery") == record["protocol"]
+    with pytest.raises(
+        CellError, match=re.escape("imagery_changes None there, {'iterations': 400} here")
+    ):
+        run(imagery="nerf")
+    assert "imagery_changes" not in cell_module.cell_protocol(
+        record["config"]
+        | {"data": {"init_args": record["config"]["data"]["init_args"] | {"imagery": "oracle"}}},
+        "mira",
+        "imagery",
+    )
 
 
 def test_train_time_counts_an_interrupted_segment_up_to_its_own_last_checkpoint(tmp_path):

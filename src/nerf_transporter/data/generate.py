@@ -85,8 +85,9 @@ class GenerationConfig(SceneConfig):
 
     def dataset_name(self) -> str:
         """<task>-<setting>-<split>, with -oracle and -px<size> for non-default imagery or pixels,
-        and -imagery<hash> for NeRF imagery settings other than the default's (a hash of those
-        changes: an imagery candidate's data sits beside the default's)."""
+        and -imagery<hash> for NeRF imagery settings other than the reference imagery's (a hash
+        of `SceneSpec.imagery_changes`: a candidate's data, or a changed default's, sits beside
+        the reference's)."""
         name = f"{self.task}-{self.setting}-{self.split}"
         if self.imagery != "nerf":
             name += f"-{self.imagery}"

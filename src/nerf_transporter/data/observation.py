@@ -38,6 +38,41 @@ IMAGERY_RUNTIME_FIELDS = ("device", "progress", "threads", "render_batch")
 # dataset, cache entry and cell was built under them before the setting existed), so that those
 # keep their identities
 IMAGERY_OPTIONS_BY_DEFAULT = {"colour_init": "grey"}
+# The NeRF imagery every dataset, cache entry and cell of the table was built with up to now (the
+# description of `ImageryConfig()` as it stood, pixel size apart): the reference that names
+# imagery changes (`SceneSpec.imagery_changes`). A dataset of other settings is named with a hash
+# of them, and a cell's protocol holds them (`imagery_changes`), so changing a default of
+# `ImageryConfig` makes new datasets and fits of their own, beside those of the reference. Never
+# edit it: the data and cells built so far are named relative to it.
+REFERENCE_IMAGERY: dict[str, Any] = {
+    "field": "dense",
+    "seed": 0,
+    "iterations": 400,
+    "batch_rays": 4096,
+    "image_downscale": 2,
+    "learning_rate": 0.1,
+    "density_learning_rate": 0.3,
+    "floor_learning_rate": 0.01,
+    "hash_learning_rate": 0.01,
+    "hash_levels": 16,
+    "hash_log2_table": 19,
+    "voxel_size": 0.003125,
+    "colour_downscale": 2,
+    "stage_scales": (4, 2, 1),
+    "stage_starts": (0.0, 0.25, 0.55),
+    "initial_thickness": 0.002,
+    "floor_cell": 0.003125,
+    "occupancy_cell": 4,
+    "occupancy_threshold": 0.01,
+    "occupancy_interval": 16,
+    "occupancy_warmup": 32,
+    "samples_per_segment": 4,
+    "sparsity_weight": 0.003,
+    "binary_weight": 0.1,
+    "binary_ramp": 0.25,
+    "floor_smoothness_weight": 0.01,
+    "final_learning_rate_factor": 0.1,
+}
 
 
 @dataclass(frozen=True)
@@ -104,12 +139,16 @@ class SceneSpec:
         )
 
     def imagery_changes(self) -> dict[str, Any]:
-        """The entries of `imagery_description` that differ from the default imagery's (at the
-        scene's pixel size); {} for oracle imagery."""
+        """The entries of `imagery_description` that differ from `REFERENCE_IMAGERY` (the pixel
+        size apart: the scene's own), tuples as the lists JSON gives back; {} for oracle imagery."""
         if self.imagery != "nerf":
             return {}
-        default = dataclasses.replace(self, imagery_options={}).imagery_description()
-        return {k: v for k, v in self.imagery_description().items() if default.get(k) != v}
+        return {
+            key: list(value) if isinstance(value, tuple) else value
+            for key, value in self.imagery_description().items()
+            if key != "pixel_size"
+            and (key not in REFERENCE_IMAGERY or REFERENCE_IMAGERY[key] != value)
+        }
 
     def imagery_description(self) -> dict[str, Any]:
         """The `nerf` imagery config without the fields that only change how fast it is built, nor

@@ -171,6 +171,7 @@ PROTOCOL_OPTIONAL = {
     "validation_episodes": "int",
     "test_episodes": "int",
     "model": "dict",
+    "imagery_changes": "dict",
     "trained_setting": "str",
     "fit_protocol_id": "str",
 }

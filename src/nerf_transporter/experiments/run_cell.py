@@ -29,7 +29,9 @@ episodes, the model's architecture (its other arguments, e.g. width and crop siz
 setting that changes what a fit learns where it differs from the value the cells so far were
 fitted with (seed, gradient accumulation and clipping, precision, augmentation, optimizer, ...:
 `training_settings`; where a fit runs, what it logs and how fast its data loads are no part of
-it). Each protocol fits in its own folder `<logs>/<task>[-<setting>]/<row>/<protocol id>/version_N`,
+it), and the NeRF imagery settings that differ from the reference imagery (`imagery_changes`:
+the config's `imagery_config` and this code's defaults alike; a stored cell keeps the ones it
+recorded). Each protocol fits in its own folder `<logs>/<task>[-<setting>]/<row>/<protocol id>/version_N`,
 so a rerun resumes the latest run from its checkpoint of the highest step (wherever the folder was
 moved; never a run whose saved config differs in such a setting), never trains a finished fit
 again, and skips a cell whose JSON holds the same protocol (read by `experiments/cells.py`: a
@@ -72,6 +74,7 @@ import yaml
 
 from nerf_transporter.atomic import UnwritableError, unwritable_reason, write_json
 from nerf_transporter.console import HelpFormatter
+from nerf_transporter.data.observation import SceneSpec
 from nerf_transporter.device_info import describe_device
 from nerf_transporter.evaluation.callback import round_view_search
 from nerf_transporter.evaluation.metrics import cell
@@ -207,6 +210,7 @@ NOT_TRAINING = {
             "n_rotations",
             "test_episodes",
             "colour_augment",
+            "imagery_config",  # the protocol's imagery_changes
             "data_dir",
             "num_workers",
             "pin_memory",
@@ -382,6 +386,8 @@ def cell_protocol(config: dict[str, Any], method: str, input_kind: str) -> dict[
     if data.get("colour_augment"):
         # only when on, so that the protocol ids of cells measured before the option stay the same
         protocol["colour_augment"] = True
+    if input_kind == "imagery" and (changes := imagery_changes(data)):
+        protocol["imagery_changes"] = changes
     for (section, key), default in PROTOCOL_KEYS_BY_DEFAULT.items():
         value = (model if section == "model" else data).get(key, default)
         if value != default:
@@ -389,6 +395,22 @@ def cell_protocol(config: dict[str, Any], method: str, input_kind: str) -> dict[
     if training := training_settings(config):
         protocol["training"] = training
     return protocol
+
+
+def imagery_changes(data: dict[str, Any]) -> dict[str, Any]:
+    """The NeRF imagery settings of a resolved config's `data.init_args` that differ from the
+    reference imagery (`SceneSpec.imagery_changes`): its `imagery_config` and the defaults of
+    `ImageryConfig` in this code alike; {} for oracle imagery."""
+    try:
+        scene = SceneSpec(
+            data["task"],
+            imagery=data.get("imagery", "nerf"),
+            pixel_size=data.get("pixel_size") or SceneSpec.pixel_size,
+            imagery_options=data.get("imagery_config") or {},
+        )
+    except (TypeError, ValueError) as error:
+        raise CellError(f"data.imagery_config: {error}") from error
+    return scene.imagery_changes()
 
 
 def training_settings(config: dict[str, Any]) -> dict[str, Any]:
@@ -444,6 +466,12 @@ def stored_protocol(cell: dict[str, Any], input_kind: str) -> dict[str, Any]:
         fit = cell_protocol(cell["config"], cell["method"], input_kind)
     except (KeyError, TypeError, AttributeError, CellError):
         return cell["protocol"]
+    # the imagery it was measured on is the recorded one: a config leaves ImageryConfig's defaults
+    # out, and those of the code that measured it may not be this code's (none recorded: the
+    # reference imagery, under which every cell was measured before the key existed)
+    fit.pop("imagery_changes", None)
+    if recorded := cell["protocol"].get("imagery_changes"):
+        fit["imagery_changes"] = recorded
     return cross_protocol(fit, cell["setting"]) if "trained_setting" in cell["protocol"] else fit
 
 
