@@ -476,6 +476,30 @@ def test_an_archived_world_renders_under_its_own_heading_never_in_the_table(tmp_
     assert f"lies in the archive of world {old} but was measured in world fedcba9876543210" in err
 
 
+def test_an_earlier_recipe_renders_under_its_own_heading_never_in_the_table(tmp_path, capsys):
+    """The table refitted under a new training recipe keeps the cells of the old one, this world's,
+    under `archive/recipe-<name>/`: shown apart, checked as this world's cells."""
+    results = tmp_path / "results"
+    write_cell(results, "form2fit", "hanging-disks", "normal", 9, 100)
+    archive = results / "archive" / "recipe-2026-12-03"
+    real_cell(archive)
+    readme, results_doc = _docs(tmp_path)
+    argv = [str(results), "--readme", str(readme), "--results-doc", str(results_doc)]
+    assert report_main(argv) == 0
+    current, earlier = capsys.readouterr().out.split("\nEarlier recipe 2026-12-03 (")
+    assert "| mira (ours) |  |" in current and "9% (100, 5-16)" in current
+    assert "| mira (ours) | 77% (100, 68-84) / - |" in earlier and "9% (100" not in earlier
+    assert "77% (100, 68-84)" not in readme.read_text() + results_doc.read_text()
+    page = results_doc.read_text()
+    assert "Earlier recipe `2026-12-03`: 1 cells of this world, kept in " in page
+    assert "`results/archive/recipe-2026-12-03/`" in page
+    assert report_main([str(archive)]) == 0  # the archive folder itself
+    assert "Earlier recipe 2026-12-03" in capsys.readouterr().out
+    real_cell(archive, world="fedcba9876543210")  # another world's cell is no earlier recipe
+    assert report_main([str(results)]) == 2
+    assert "was measured in world fedcba9876543210" in capsys.readouterr().err
+
+
 def test_the_table_holds_both_settings_both_measures_and_the_paper_under_its_labels(
     tmp_path, capsys
 ):

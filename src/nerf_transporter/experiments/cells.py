@@ -22,7 +22,9 @@ of an earlier world, kept with the layout of `results/`), that fingerprint.
 `find_records` reads the folders `report` is given: the cells of a folder of cells (each where
 run-cell writes it, else refused), else, in a folder of runs such as `logs/`, its test records
 (`results*.json`). A test record under a folder of cells is left out: it is never taken for a
-cell of the table. The archived worlds below a folder come apart, one `Archive` each.
+cell of the table. The archived worlds below a folder come apart, one `Archive` each, and so do
+the archived recipes: this world's cells measured under a training recipe the table has since
+left, kept under `<results>/archive/recipe-<name>/` with the layout of `results/`.
 """
 
 from __future__ import annotations
@@ -49,6 +51,8 @@ from nerf_transporter.splits import VALIDATION_OFFSET, split_of_seed
 TEST_RECORD_GLOB = "results*.json"  # lightning test's records, one per tested checkpoint
 ARCHIVE = "archive"  # <results>/archive/world-<fingerprint>/: the cells of an earlier world
 ARCHIVED_WORLD = re.compile(r"world-([0-9a-f]{16})")
+# <results>/archive/recipe-<name>/: this world's cells measured under an earlier training recipe
+ARCHIVED_RECIPE = re.compile(r"recipe-([a-z0-9][a-z0-9._-]*)")
 OUTCOMES = ("success", "failure", "error")
 TOLERANCE = 1e-9  # how far a stored interval may lie from the one recomputed from its counts
 LARGEST_INT = 2**53  # the largest count or seed a record may hold (beyond it no float is exact)
@@ -455,14 +459,23 @@ def _check_world(record: dict[str, Any], where: str, world: str, archived: bool)
     )
 
 
-def archived_world(path: Path) -> str | None:
-    """The fingerprint of the archive `path` lies in (`.../archive/world-<fingerprint>/...`)."""
-    worlds = [
+def _archived(path: Path, pattern: re.Pattern) -> str | None:
+    names = [
         match.group(1)
         for parent, name in pairwise(path.absolute().parts)
-        if parent == ARCHIVE and (match := ARCHIVED_WORLD.fullmatch(name))
+        if parent == ARCHIVE and (match := pattern.fullmatch(name))
     ]
-    return worlds[-1] if worlds else None
+    return names[-1] if names else None
+
+
+def archived_world(path: Path) -> str | None:
+    """The fingerprint of the archive `path` lies in (`.../archive/world-<fingerprint>/...`)."""
+    return _archived(path, ARCHIVED_WORLD)
+
+
+def archived_recipe(path: Path) -> str | None:
+    """The name of the earlier recipe whose archive `path` lies in (`.../archive/recipe-<name>/`)."""
+    return _archived(path, ARCHIVED_RECIPE)
 
 
 def _read(path: Path) -> Any:
@@ -529,11 +542,14 @@ def _placed(record: dict[str, Any], path: Path, archived: bool) -> dict[str, Any
 
 @dataclass
 class Archive:
-    """The cells of an earlier world, kept under `<results>/archive/world-<world>/`."""
+    """The cells of an earlier world, kept under `<results>/archive/world-<world>/`, or, where
+    `recipe` names one, this world's cells measured under an earlier training recipe, kept under
+    `<results>/archive/recipe-<recipe>/` (`world` is then this checkout's)."""
 
     world: str
     folder: Path
     cells: list[dict[str, Any]] = field(default_factory=list)
+    recipe: str | None = None
 
 
 @dataclass
@@ -546,19 +562,23 @@ class Found:
     left_out: list[Path] = field(default_factory=list)
 
 
-def _folders(root: Path) -> list[tuple[Path, str | None]]:
-    """(folder, archived world or None for this checkout's) of each folder `root` stands for."""
+def _folders(root: Path) -> list[tuple[Path, str | None, str | None]]:
+    """(folder, archived world, earlier recipe) of each folder `root` stands for: None and None
+    for this checkout's table."""
     if root.absolute().name == ARCHIVE:
         children = sorted(path for path in root.iterdir() if path.is_dir())
         return [
-            (path, match.group(1))
+            (path, world, recipe)
             for path in children
-            if (match := ARCHIVED_WORLD.fullmatch(path.name))
+            for world, recipe in [(archived_world(path), archived_recipe(path))]
+            if world is not None or recipe is not None
         ]
-    world = archived_world(root)
+    world, recipe = archived_world(root), archived_recipe(root)
     if world is not None:
-        return [(root, world)]
-    return [(root, None)] + (_folders(root / ARCHIVE) if (root / ARCHIVE).is_dir() else [])
+        return [(root, world, None)]
+    if recipe is not None:
+        return [(root, None, recipe)]
+    return [(root, None, None)] + (_folders(root / ARCHIVE) if (root / ARCHIVE).is_dir() else [])
 
 
 def find_records(roots: list[Path]) -> Found:
@@ -567,10 +587,11 @@ def find_records(roots: list[Path]) -> Found:
     for root in roots:
         if not root.is_dir():
             raise FileNotFoundError(f"no such directory: {root}")
-        for folder, world in _folders(root):
+        for folder, world, recipe in _folders(root):
             if folder.resolve() in seen:
                 continue
             seen.add(folder.resolve())
+            archived = world is not None or recipe is not None
             cells = sorted(
                 path
                 for path in folder.glob("*/*.json")
@@ -579,18 +600,19 @@ def find_records(roots: list[Path]) -> Found:
             tests = sorted(
                 path
                 for path in folder.rglob(TEST_RECORD_GLOB)
-                if world is not None or not path.is_relative_to(folder / ARCHIVE)
+                if archived or not path.is_relative_to(folder / ARCHIVE)
             )
-            if cells or world is not None:
+            if cells or archived:
                 records = [
                     _placed(load_cell(path, world), path, world is not None) for path in cells
                 ]
                 found.left_out += tests
             else:
                 records = [load_record(path) for path in tests]
-            if world is None:
+            if not archived:
                 found.records += records
             elif records:
-                archives.setdefault(world, Archive(world, folder)).cells.extend(records)
+                archive = Archive(world or world_fingerprint(), folder, recipe=recipe)
+                archives.setdefault((world, recipe), archive).cells.extend(records)
     found.archives = list(archives.values())
     return found

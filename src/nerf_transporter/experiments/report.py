@@ -14,7 +14,8 @@ several records exist for one cell, a cell outranks a test record, then the newe
 of our rows, the paper's Table 1 value of that method under the column its table labels it by
 (`experiments/paper.py`; `PAPER_NOTE` on reading its caption). The cells of an earlier world,
 kept under `<root>/archive/world-<fingerprint>/`, follow in a table of their own under the heading
-"Archived world <fingerprint>", never in this world's table.
+"Archived world <fingerprint>", never in this world's table; so do this world's cells of an
+earlier training recipe, kept under `<root>/archive/recipe-<name>/`, under "Earlier recipe <name>".
 `--plot` draws the table as bars with their intervals and the paper's values as markers;
 `--validation-plots DIR` draws each column's validation success against training steps (the budget
 study, `docs/budget.md`) and `--validation-tables` prints them. `--readme` rewrites the README's
@@ -410,9 +411,15 @@ def paired_comparisons(records: list[dict]) -> tuple[list[str], list[list[str]]]
 
 
 def archive_title(archive: Archive) -> str:
-    """The heading line of an archived world's table in the report's output."""
+    """The heading line of an archived world's or recipe's table in the report's output."""
+    cells = len(newest_records(archive.cells))
+    if archive.recipe is not None:
+        return (
+            f"Earlier recipe {archive.recipe} ({archive.folder}: {cells} cells of this world, "
+            "measured under a training recipe the table has left)"
+        )
     return (
-        f"Archived world {archive.world} ({archive.folder}: {len(newest_records(archive.cells))} "
+        f"Archived world {archive.world} ({archive.folder}: {cells} "
         "cells, measured in an earlier world, not comparable with this world's)"
     )
 
@@ -492,12 +499,23 @@ def results_doc_block(records: list[dict], archives: Sequence[Archive] = ()) -> 
         ]
         lines += ["", *(f"    {command} --force" for command in commands)]
     for archive in archives:
+        cells = len(newest_records(archive.cells))
+        if archive.recipe is not None:
+            text = (
+                f"Earlier recipe `{archive.recipe}`: {cells} cells of this world, kept in "
+                f"`results/{ARCHIVE}/recipe-{archive.recipe}/`: the same seeds and world, fitted "
+                "under the training recipe the table used before (what changed: "
+                "[budget.md](budget.md)). "
+            )
+        else:
+            text = (
+                f"Archived world `{archive.world}`: {cells} cells, kept "
+                f"in `results/{ARCHIVE}/world-{archive.world}/`; its seeds built other scenes than "
+                "this world's, so these numbers are not comparable with the table above. "
+            )
         lines += [
             "",
-            f"Archived world `{archive.world}`: {len(newest_records(archive.cells))} cells, kept "
-            f"in `results/{ARCHIVE}/world-{archive.world}/`; its seeds built other scenes than "
-            "this world's, so these numbers are not comparable with the table above. "
-            "`nerf-transporter report results/` prints its table after this world's.",
+            text + "`nerf-transporter report results/` prints its table after this world's.",
         ]
     return "\n".join(lines) + "\n"
 

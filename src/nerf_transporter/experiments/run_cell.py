@@ -499,7 +499,8 @@ def measured(
     )
     raise CellError(
         f"{path} holds this cell under another protocol ({changed}); --force replaces it, "
-        "--results <folder> keeps both"
+        "--results <folder> keeps both (an earlier recipe's cell moves to "
+        "<results>/archive/recipe-<name>/ first, docs/results.md)"
     )
 
 
