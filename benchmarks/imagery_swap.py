@@ -8,7 +8,8 @@ comes from one imagery (nerf or oracle) and whose height from the other.
 
 Both imageries of the first --episodes test seeds must already be in the imagery cache
 (`--cache-dir`, where `evaluate-checkpoints --imagery nerf|oracle` leaves them): nothing is fitted
-here. The composed views are written to a cache of their own (`--swap-cache`) under the key of the
+here. `--imagery-option KEY=VALUE` takes the NeRF half from an imagery candidate instead of the
+training data's imagery (as `evaluate-checkpoints --imagery-option`, which caches it). The composed views are written to a cache of their own (`--swap-cache`) under the key of the
 NeRF imagery, and the checkpoint is tested there by `evaluate-checkpoints`' own code, so the
 episodes are the protocol's but for the views. The record is the test record it writes (also kept
 in the run's `evaluation/`), with `imagery_swap` ({"colour": ..., "height": ...}) added; pair it with
@@ -26,6 +27,7 @@ import torch
 
 from nerf_transporter.atomic import write_json
 from nerf_transporter.console import progress_bar
+from nerf_transporter.data.generate import add_imagery_option_argument
 from nerf_transporter.data.observation import IMAGERY_KINDS
 from nerf_transporter.evaluation.cache import ImageryCache
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec
@@ -96,16 +98,28 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--eval-workers", type=int, default=1, help="episode processes")
     parser.add_argument("--record", type=Path, required=True, help="where to write the record")
+    add_imagery_option_argument(
+        parser, "the NeRF half from the imagery fitted with this setting (repeatable; default: [])"
+    )
     args = parser.parse_args(argv)
+    options = dict(args.imagery_option)
     if args.colour == args.height:
         parser.error("--colour and --height name the same imagery: that is a plain test")
     swap_dir = args.swap_cache / f"{args.colour}-colour-{args.height}-height"
+    swap_dir = swap_dir.with_name(
+        swap_dir.name + "".join(f"-{key}{value}" for key, value in sorted(options.items()))
+    )
     try:
         [(_, checkpoint)] = chosen_checkpoints(args.run_dir, [args.checkpoint])
         _, datamodule = load_checkpoint(checkpoint, torch.device("cpu"))
         specs = {
             kind: EvaluationSpec.from_datamodule(
-                datamodule, split="test", setting=args.setting, imagery=kind, cache_dir=None
+                datamodule,
+                split="test",
+                setting=args.setting,
+                imagery=kind,
+                imagery_options=options if kind == "nerf" else None,
+                cache_dir=None,
             )
             for kind in IMAGERY_KINDS
         }
@@ -128,11 +142,14 @@ def main(argv: list[str] | None = None) -> int:
             device=torch.device("cpu"),
             workers=args.eval_workers,
             only=[checkpoint],
+            imagery_options=options or None,
         )
     except (FileNotFoundError, ValueError) as error:
         print(f"imagery_swap: {error}", file=sys.stderr)
         return 1
     record["imagery_swap"] = {"colour": args.colour, "height": args.height}
+    if options:
+        record["imagery_swap"]["imagery_options"] = options
     write_json(args.record, record)
     print(
         f"{record['successes']}/{record['episodes']} succeeded (strict "
