@@ -34,6 +34,7 @@ from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpe
 from nerf_transporter.experiments.checkpoints import (
     chosen_checkpoints,
     evaluate_checkpoints,
+    imagery_options_suffix,
     load_checkpoint,
 )
 from nerf_transporter.splits import split_seed
@@ -105,9 +106,9 @@ def main(argv: list[str] | None = None) -> int:
     options = dict(args.imagery_option)
     if args.colour == args.height:
         parser.error("--colour and --height name the same imagery: that is a plain test")
-    swap_dir = args.swap_cache / f"{args.colour}-colour-{args.height}-height"
-    swap_dir = swap_dir.with_name(
-        swap_dir.name + "".join(f"-{key}{value}" for key, value in sorted(options.items()))
+    swap_dir = (
+        args.swap_cache
+        / f"{args.colour}-colour-{args.height}-height{imagery_options_suffix(options)}"
     )
     try:
         [(_, checkpoint)] = chosen_checkpoints(args.run_dir, [args.checkpoint])

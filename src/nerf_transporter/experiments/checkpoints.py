@@ -322,7 +322,7 @@ def evaluate_checkpoints(
             )
             # named with what was asked beyond the training's: imagery, view choice, options
             suffix = "".join(f"-{choice}" for choice in (imagery, view_choice) if choice)
-            suffix += "".join(f"-{k}{v}" for k, v in sorted((imagery_options or {}).items()))
+            suffix += imagery_options_suffix(imagery_options)
             write_new_json(
                 run_dir / "evaluation", f"{path.stem}-{split}-{record['setting']}{suffix}", record
             )
@@ -333,6 +333,12 @@ def evaluate_checkpoints(
             "evaluated: " + "; ".join(unloadable)
         )
     return records
+
+
+def imagery_options_suffix(imagery_options: dict[str, Any] | None) -> str:
+    """`-<key><value>` for each imagery option, sorted: how records and caches of an imagery
+    candidate are named."""
+    return "".join(f"-{key}{value}" for key, value in sorted((imagery_options or {}).items()))
 
 
 def best_record(records: list[dict]) -> dict | None:
