@@ -4,6 +4,8 @@
     python benchmarks/imagery.py --dataset data/block-insertion-normal-train --episodes 4
     python benchmarks/imagery.py --task place-red-in-green --setting challenging --threads 1 \
         --rig mira30 --imagery-option image_downscale=1
+    python benchmarks/imagery.py --task place-red-in-green --setting challenging --episodes 100 \
+        --cached data/imagery-cache --imagery-option iterations=800
 
 A candidate imagery is scored without a policy: `--imagery-option KEY=VALUE` sets any field of
 the fit's settings (`ImageryConfig`, as `generate --imagery-option`), and `--rig` captures the
@@ -16,13 +18,19 @@ settings on this device, and the truth is the simulator's renders stored beside 
 (`truth_view_ids`, the pick and place views); the stored imagery, fitted where the dataset was made,
 is scored against the same truth, so the two fits compare on identical inputs.
 
+With `--cached` nothing is fitted or simulated: the NeRF imagery that the imagery cache already
+holds for the test seeds (built by a test of the candidate, `evaluate-checkpoints --imagery-option`,
+or by `cache-imagery`) is scored against the simulator's imagery cached beside it (`--imagery
+oracle`), so a candidate is scored on the very scenes of its swap test, 100 of them in minutes.
+
 Per scene: fit seconds, render seconds for the whole view grid, PSNR of the top-down view and the
 mean over the grid, height MAE (mm) overall and on object pixels (top-down view), and with the
 simulator the grid's height MAE and PSNR by view tilt (the view's axis from the vertical, bins of
 `VIEW_TILT_BINS_DEG`: the 7 x 7 Normal grid reaches 41 deg, the 11 x 11 Challenging one 60), over
 the workspace (the pixels whose true surface lies over it, those mira places at) and on object
-pixels (those of them whose true surface stands over 5 mm above the table in the world,
-`view_errors`). The steepest views' image borders see past the workspace, where the simulator and
+pixels (those of them whose true surface stands over 5 mm above the table in the world), and
+PSNR at the true colour's edges and off them (`colour_edges`: outlines, where a radiance field
+blurs; `view_errors`). The steepest views' image borders see past the workspace, where the simulator and
 the NeRF's floor disagree by up to metres: the grid's all-pixel figure (height_mae_grid_mm) counts
 them, the per-tilt ones do not. Times are wall seconds, and also process CPU seconds (fit_cpu_s,
 render_cpu_s, and their sums fit_render_s, fit_render_cpu_s), steadier than wall time on a shared
@@ -30,8 +38,9 @@ machine (meaningless for GPU work, which they miss). The first line names the de
 CPU model and torch threads) and the torch version. With --json the last line is one JSON object
 with the medians (the times, psnr_db, height_mae_mm, object_height_mae_mm; with the simulator
 height_mae_grid_mm and the per-bin medians height_mae_by_view_tilt_mm, psnr_by_view_tilt_db,
-object_height_mae_by_view_tilt_mm and object_psnr_by_view_tilt_db), the device fields and
-per_scene.
+object_height_mae_by_view_tilt_mm, object_psnr_by_view_tilt_db, edge_psnr_by_view_tilt_db and
+flat_psnr_by_view_tilt_db), the device fields and per_scene (with --cached: no times, no device,
+and the scene count as episodes).
 """
 
 from __future__ import annotations
@@ -51,6 +60,8 @@ import torch
 from nerf_transporter import geometry, splits
 from nerf_transporter.data.generate import add_imagery_option_argument
 from nerf_transporter.device_info import describe_device, device_line
+from nerf_transporter.evaluation.cache import ImageryCache
+from nerf_transporter.evaluation.rollout import EvaluationSpec
 from nerf_transporter.imagery import (
     ImageryConfig,
     fit_scene,
@@ -59,7 +70,7 @@ from nerf_transporter.imagery import (
     render_views,
     resolve_device,
 )
-from nerf_transporter.imagery.metrics import OBJECT_HEIGHT
+from nerf_transporter.imagery.metrics import OBJECT_HEIGHT, colour_edges
 from nerf_transporter.methods.mira import over_workspace
 from nerf_transporter.sim import cameras
 
@@ -70,6 +81,8 @@ BY_VIEW_TILT = (
     ("psnr_by_view_tilt_db", "workspace_psnr_db", "PSNR", "dB"),
     ("object_height_mae_by_view_tilt_mm", "object_height_mae_mm", "object height MAE", "mm"),
     ("object_psnr_by_view_tilt_db", "object_psnr_db", "object PSNR", "dB"),
+    ("edge_psnr_by_view_tilt_db", "edge_psnr_db", "edge PSNR", "dB"),
+    ("flat_psnr_by_view_tilt_db", "flat_psnr_db", "PSNR off edges", "dB"),
 )
 
 
@@ -147,12 +160,14 @@ def view_errors(
     view_rotation: np.ndarray,
     pixel_size: float,
 ) -> dict[str, float]:
-    """One view's height MAE (mm) and PSNR (dB) over the workspace and on its object pixels.
+    """One view's height MAE (mm) and PSNR (dB) over the workspace, on its object pixels, at its
+    colour edges and off them.
 
     Workspace pixels are those whose true surface point lies over the workspace; object pixels are
     the workspace pixels whose true surface point stands more than `OBJECT_HEIGHT` above the table
     in the world (a tilted view's height is along its own axis, so the table itself is not at
-    height 0 there). Object figures are NaN for a view without object pixels.
+    height 0 there); edge pixels the workspace pixels at the true colour's edges (`colour_edges`),
+    flat ones the others. A region's figures are NaN for a view without pixels in it.
     """
     pixels = np.stack(np.indices(np.shape(truth_height)), axis=-1)
     surface = geometry.view_to_world(
@@ -160,8 +175,15 @@ def view_errors(
     )
     workspace = over_workspace(surface)
     objects = workspace & (surface[..., 2] > OBJECT_HEIGHT)
+    edges = colour_edges(truth_colour)
     errors = {}
-    for name, mask in (("workspace", workspace), ("object", objects)):
+    regions = {
+        "workspace": workspace,
+        "object": objects,
+        "edge": workspace & edges,
+        "flat": workspace & ~edges,
+    }
+    for name, mask in regions.items():
         if mask.any():
             errors[f"{name}_height_mae_mm"] = height_mae_mm(height[mask], truth_height[mask])[0]
             errors[f"{name}_psnr_db"] = psnr(colour[mask], truth_colour[mask])
@@ -190,6 +212,46 @@ def fit_and_render(nerf: dict, grid: np.ndarray, config: ImageryConfig) -> tuple
     return times | {"fit_render_cpu_s": fit_cpu_s + render_cpu_s, "views": len(grid)}, images
 
 
+def score_grid(
+    colour: np.ndarray,
+    height: np.ndarray,
+    truth_colour: np.ndarray,
+    truth_height: np.ndarray,
+    grid: np.ndarray,
+    pixel_size: float,
+) -> dict:
+    """The figures of imagery [V, ...] of view grid `grid` against the true views [V, ...]: PSNR
+    of the top-down view and over the grid, height MAE (top-down, its objects, the grid) and the
+    per-tilt means of `BY_VIEW_TILT`."""
+    top = geometry.top_down_view_index(grid)
+    psnrs = [psnr(colour[v], truth_colour[v]) for v in range(len(grid))]
+    overall, on_objects = height_mae_mm(height[top], truth_height[top])
+    grid_errors = [height_mae_mm(height[v], truth_height[v])[0] for v in range(len(grid))]
+    per_view = [
+        view_errors(
+            colour[v],
+            height[v],
+            truth_colour[v],
+            truth_height[v],
+            geometry.tilt_matrix(*grid[v]),
+            pixel_size,
+        )
+        for v in range(len(grid))
+    ]
+    by_tilt = {
+        key: mean_by_view_tilt(grid, [errors[name] for errors in per_view])
+        for key, name, _, _ in BY_VIEW_TILT
+    }
+    return {
+        "psnr_db": psnrs[top],
+        "psnr_grid_db": float(np.mean(psnrs)),
+        "height_mae_mm": overall,
+        "object_height_mae_mm": on_objects,
+        "height_mae_grid_mm": float(np.mean(grid_errors)),
+        **by_tilt,
+    }
+
+
 def measure_scene(
     task: str, setting: str, seed: int, config: ImageryConfig, rig: CameraBand | None = None
 ) -> dict:
@@ -205,31 +267,43 @@ def measure_scene(
     finally:
         env.close()
     times, (colour, height) = fit_and_render(obs["nerf"], grid, config)
-    top = geometry.top_down_view_index(grid)
-    psnrs = [psnr(colour[v], truth[v][0]) for v in range(len(grid))]
-    overall, on_objects = height_mae_mm(height[top], truth[top][1])
-    grid_errors = [height_mae_mm(height[v], truth[v][1])[0] for v in range(len(grid))]
-    per_view = [
-        view_errors(
-            colour[v], height[v], *truth[v], geometry.tilt_matrix(*grid[v]), config.pixel_size
-        )
-        for v in range(len(grid))
-    ]
-    by_tilt = {
-        key: mean_by_view_tilt(grid, [errors[name] for errors in per_view])
-        for key, name, _, _ in BY_VIEW_TILT
-    }
-    return {
-        "task": task,
-        "seed": seed,
-        **times,
-        "psnr_db": psnrs[top],
-        "psnr_grid_db": float(np.mean(psnrs)),
-        "height_mae_mm": overall,
-        "object_height_mae_mm": on_objects,
-        "height_mae_grid_mm": float(np.mean(grid_errors)),
-        **by_tilt,
-    }
+    truth_colour, truth_height = (np.stack(images) for images in zip(*truth, strict=True))
+    scores = score_grid(colour, height, truth_colour, truth_height, grid, config.pixel_size)
+    return {"task": task, "seed": seed, **times, **scores}
+
+
+def measure_cached_scene(
+    cache: ImageryCache, nerf: EvaluationSpec, oracle: EvaluationSpec, seed: int
+) -> dict:
+    """Score the NeRF imagery of `nerf`'s scene `seed` against the simulator's (`oracle`'s), both
+    read from the imagery cache: no fit, no simulator. SystemExit naming the command that builds
+    the cache where a seed's imagery is not there."""
+    loaded = {}
+    for spec in (nerf, oracle):
+        loaded[spec.imagery] = cache.load(spec.task, spec.setting, seed, spec.imagery_key())
+        if loaded[spec.imagery] is None:
+            options = "".join(
+                f" --imagery-option {key}={value}" for key, value in nerf.imagery_options.items()
+            )
+            raise SystemExit(
+                f"no cached {spec.imagery} imagery of {spec.task} ({spec.setting}) test seed {seed} "
+                f"under {cache.root} (key {spec.imagery_key()}); build it with `nerf-transporter "
+                f"evaluate-checkpoints ... --split test --imagery {spec.imagery}"
+                + (options if spec.imagery == "nerf" else "")
+                + "` or, for the imagery a config names, `nerf-transporter cache-imagery`"
+            )
+    colour, truth = loaded["nerf"], loaded["oracle"]
+    if not np.array_equal(colour["views"], truth["views"]):
+        raise SystemExit(f"seed {seed}: the cached NeRF and simulator views are of different grids")
+    scores = score_grid(
+        colour["colour"],
+        colour["height"].astype(np.float32),
+        truth["colour"],
+        truth["height"].astype(np.float32),
+        colour["views"],
+        nerf.pixel_size,
+    )
+    return {"task": nerf.task, "seed": seed, **scores}
 
 
 def truth_errors(colour: np.ndarray, height: np.ndarray, stored: Any) -> dict:
@@ -282,6 +356,61 @@ def _by_tilt_text(result: dict) -> str:
     )
 
 
+def summarise(per_scene: list[dict], keys: tuple[str, ...], by_tilt: bool) -> dict:
+    """The medians over the scenes of `keys` and, with `by_tilt`, of each `BY_VIEW_TILT` bin."""
+    summary = {key: statistics.median(r[key] for r in per_scene) for key in keys}
+    for key, _, _, _ in BY_VIEW_TILT if by_tilt else ():
+        names = sorted(
+            {name for r in per_scene for name in r[key]}, key=lambda n: float(n.split("-")[0])
+        )
+        summary[key] = {
+            name: statistics.median(r[key][name] for r in per_scene if name in r[key])
+            for name in names
+        }
+    return summary
+
+
+SCORE_KEYS = ("psnr_db", "height_mae_mm", "object_height_mae_mm", "height_mae_grid_mm")
+
+
+def score_cache(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """`--cached`: the cached NeRF imagery of each task's first test seeds against the simulator's."""
+    options = dict(args.imagery_option)
+    if args.iterations is not None:
+        options["iterations"] = args.iterations
+    cache = ImageryCache(args.cached)
+    per_scene = []
+    try:
+        specs = [
+            [
+                EvaluationSpec(task, setting=args.setting, imagery=imagery, imagery_config=config)
+                for imagery, config in (("nerf", options), ("oracle", None))
+            ]
+            for task in args.task
+        ]
+    except (TypeError, ValueError) as error:
+        parser.error(str(error))
+    for nerf, oracle in specs:
+        print(
+            f"{nerf.task} ({nerf.setting}): NeRF imagery {nerf.imagery_key()} against the "
+            f"simulator's {oracle.imagery_key()}, under {cache.root}",
+            flush=True,
+        )
+        for seed in (splits.split_seed("test", i) for i in range(args.episodes)):
+            per_scene.append(measure_cached_scene(cache, nerf, oracle, seed))
+    summary = summarise(per_scene, SCORE_KEYS, by_tilt=True)
+    if args.json:
+        print(json.dumps(summary | {"episodes": len(per_scene), "per_scene": per_scene}))
+    else:
+        medians = {key: summary[key] for key in SCORE_KEYS}
+        print(
+            f"medians of {len(per_scene)} scenes: "
+            + ", ".join(f"{key} {value:.2f}" for key, value in medians.items())
+        )
+        print("medians, " + _by_tilt_text(summary))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", nargs="+", default=["block-insertion"])
@@ -304,6 +433,14 @@ def main(argv: list[str] | None = None) -> int:
         default="default",
         help="the NeRF rig that captures the scenes (not with --dataset, whose views are stored)",
     )
+    parser.add_argument(
+        "--cached",
+        type=Path,
+        metavar="CACHE_DIR",
+        help="score the NeRF imagery (of --imagery-option) already in this imagery cache against "
+        "the simulator's imagery cached beside it, on the first --episodes test seeds of each "
+        "--task: no fit, no simulator, no times (e.g. data/imagery-cache)",
+    )
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     parser.add_argument("--device", default="auto", help="auto (CUDA when available), cpu, cuda")
     parser.add_argument("--json", action="store_true", help="last line: one JSON object")
@@ -316,6 +453,10 @@ def main(argv: list[str] | None = None) -> int:
     datasets = args.dataset or []
     if datasets and args.rig != "default":
         parser.error("--rig: a dataset's views are stored; the rig applies to --task scenes")
+    if args.cached and (datasets or args.rig != "default"):
+        parser.error("--cached scores cached imagery of --task scenes: no --dataset, no --rig")
+    if args.cached:
+        return score_cache(parser, args)
     try:
         config = dataset_config(datasets[0], overrides) if datasets else ImageryConfig(**overrides)
     except (TypeError, ValueError) as error:
@@ -355,22 +496,13 @@ def main(argv: list[str] | None = None) -> int:
                 flush=True,
             )
     keys = ("fit_s", "render_s", "fit_render_s", "fit_cpu_s", "render_cpu_s", "fit_render_cpu_s")
-    keys += ("psnr_db", "height_mae_mm")
-    keys += ("object_height_mae_mm",)
     if datasets:
+        keys += ("psnr_db", "height_mae_mm", "object_height_mae_mm")
         keys += ("stored_psnr_db", "stored_height_mae_mm", "stored_object_height_mae_mm")
     else:
-        keys += ("height_mae_grid_mm",)
-    summary = {key: statistics.median(r[key] for r in per_scene) for key in keys}
-    medians = dict(summary)
-    for key, _, _, _ in [] if datasets else BY_VIEW_TILT:
-        names = sorted(
-            {name for r in per_scene for name in r[key]}, key=lambda n: float(n.split("-")[0])
-        )
-        summary[key] = {
-            name: statistics.median(r[key][name] for r in per_scene if name in r[key])
-            for name in names
-        }
+        keys += SCORE_KEYS
+    summary = summarise(per_scene, keys, by_tilt=not datasets)
+    medians = {key: summary[key] for key in keys}
     summary.update(device=device, per_scene=per_scene)
     if args.json:
         print(json.dumps(summary))

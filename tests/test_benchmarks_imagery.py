@@ -1,10 +1,16 @@
 """benchmarks/imagery.py: the grid's figures by view tilt, over the workspace and on object pixels."""
 
+import json
+
 import numpy as np
 import pytest
 
 from nerf_transporter import geometry
+from nerf_transporter.evaluation.cache import ImageryCache
+from nerf_transporter.evaluation.rollout import EvaluationSpec
+from nerf_transporter.imagery.metrics import colour_edges
 from nerf_transporter.methods.mira import pixels_over_workspace
+from nerf_transporter.splits import split_seed
 from tests.helpers.benchmarks import load_benchmark
 
 
@@ -89,3 +95,51 @@ def test_views_without_object_pixels_are_left_out_of_their_tilt_bin():
     values = [float("nan")] * len(normal)
     values[geometry.top_down_view_index(normal)] = 3.0
     assert script.mean_by_view_tilt(normal, values) == {"0-10": 3.0}
+
+
+def _cache_scene(cache: ImageryCache, spec: EvaluationSpec, seed: int, colour, height) -> None:
+    views = geometry.view_grid(spec.setting)
+    cache.save(
+        spec.task,
+        spec.setting,
+        seed,
+        spec.imagery_key(),
+        {"colour": colour, "height": height, "views": views},
+    )
+
+
+def test_cached_imagery_is_scored_against_the_simulators_with_its_edges_apart(tmp_path, capsys):
+    """`--cached`: a candidate's imagery already in the cache is scored without a fit, and its
+    colour error at the true colour's edges is told from the error elsewhere."""
+    script = load_benchmark("imagery")
+    grid = geometry.view_grid("normal")
+    rows, cols = geometry.image_shape()
+    world_height = np.zeros((rows, cols))
+    world_height[150:171, 70:91] = 0.03
+    truth_height = np.stack(
+        [_view_surface(geometry.tilt_matrix(*view), world_height) for view in grid]
+    )
+    truth_colour = np.full((len(grid), rows, cols, 3), 120, np.uint8)
+    truth_colour[:, 150:171, 70:91] = (200, 40, 40)
+    edges = np.stack([colour_edges(image) for image in truth_colour])
+    colour = truth_colour + np.where(edges, 30, 2).astype(np.uint8)[..., None]
+    options = {"iterations": 800}
+    cache = ImageryCache(tmp_path)
+    seed = split_seed("test", 0)
+    nerf = EvaluationSpec("place-red-in-green", imagery="nerf", imagery_config=options)
+    oracle = EvaluationSpec("place-red-in-green", imagery="oracle")
+    _cache_scene(cache, nerf, seed, colour, truth_height)
+    _cache_scene(cache, oracle, seed, truth_colour, truth_height)
+
+    argv = ["--task", "place-red-in-green", "--episodes", "1", "--cached", str(tmp_path)]
+    assert script.main([*argv, "--imagery-option", "iterations=800", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert summary["episodes"] == 1 and summary["height_mae_mm"] == 0.0
+    edge, flat = summary["edge_psnr_by_view_tilt_db"], summary["flat_psnr_by_view_tilt_db"]
+    assert list(edge) == list(flat) == ["0-10", "10-20", "20-30", "30-40", "40-90"]
+    assert list(edge.values()) == pytest.approx([20 * np.log10(255 / 30)] * 5)
+    assert list(flat.values()) == pytest.approx([20 * np.log10(255 / 2)] * 5)
+    with pytest.raises(SystemExit, match="no cached nerf imagery .* iterations=400.*cache-imagery"):
+        script.main([*argv, "--imagery-option", "iterations=400"])
+    with pytest.raises(SystemExit, match="test seed"):
+        script.main([*argv[:3], "2", *argv[4:], "--imagery-option", "iterations=800"])

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from nerf_transporter.imagery import height_mae_mm, psnr
+from nerf_transporter.imagery.metrics import colour_edges
 
 
 def test_psnr_of_a_one_level_error_everywhere():
@@ -24,3 +25,22 @@ def test_height_mae_overall_and_on_objects():
 def test_shape_mismatch_is_an_error():
     with pytest.raises(ValueError, match="shape mismatch"):
         psnr(np.zeros((2, 2, 3), np.uint8), np.zeros((2, 3, 3), np.uint8))
+
+
+def test_colour_edges_mark_an_outline_not_the_surfaces_either_side():
+    image = np.full((20, 30, 3), 120, np.uint8)
+    image[5:15, 10:20] = (200, 40, 40)  # a red square on a grey table
+    thin = colour_edges(image, width=0)
+    outline = np.zeros((20, 30), bool)
+    outline[4:16, 9:21] = True
+    outline[6:14, 11:19] = False  # a two-pixel ring across the square's border,
+    outline[[4, 4, 15, 15], [9, 20, 9, 20]] = False  # but for its outer corners
+    assert np.array_equal(thin, outline)
+    grown = colour_edges(image, width=1)
+    assert grown[3, 15] and grown[6, 15] and not grown[2, 15] and not grown[7, 15]
+    assert not colour_edges(np.full((20, 30, 3), 120, np.uint8)).any()
+
+
+def test_colour_edges_need_a_colour_image():
+    with pytest.raises(ValueError, match=r"\[H, W, 3\] colour image"):
+        colour_edges(np.zeros((20, 30), np.uint8))

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 
 OBJECT_HEIGHT = 0.005  # pixels whose ground-truth height exceeds this (m) belong to objects
+EDGE_GRADIENT = 10.0  # grey levels a pixel: a colour edge (a bowl's rim, a disk's outline)
 
 
 def psnr(prediction: np.ndarray, target: np.ndarray) -> float:
@@ -34,3 +36,17 @@ def height_mae_mm(
     overall = float(error.mean())
     on_objects = float(error[objects].mean()) if objects.any() else float("nan")
     return overall, on_objects
+
+
+def colour_edges(image: np.ndarray, gradient: float = EDGE_GRADIENT, width: int = 1) -> np.ndarray:
+    """Boolean mask [H, W] of the pixels at colour edges of a uint8 image [H, W, 3]: where the
+    grey level (the channels' mean) changes by more than `gradient` a pixel (central differences),
+    grown by `width` pixels on each side. The imagery's colour error gathers there, where a
+    radiance field blurs outlines (docs/imagery.md), so its PSNR is scored apart."""
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[-1] != 3:
+        raise ValueError(f"expected an [H, W, 3] colour image, got shape {image.shape}")
+    grey = image.astype(np.float64).mean(axis=-1)
+    d_row, d_col = np.gradient(grey)
+    edges = np.hypot(d_row, d_col) > gradient
+    return ndimage.binary_dilation(edges, iterations=width) if width > 0 else edges
