@@ -14,6 +14,10 @@ NeRF imagery, and the checkpoint is tested there by `evaluate-checkpoints`' own 
 episodes are the protocol's but for the views. The record is the test record it writes (also kept
 in the run's `evaluation/`), with `imagery_swap` ({"colour": ..., "height": ...}) added; pair it with
 `compare-cells`, break it down with `failures`.
+
+`--colour-blur SIGMA` blurs the colour half with a Gaussian of SIGMA pixels, the same in every view:
+with `--colour oracle --height oracle` it measures what a blur alone costs the policy, the swap
+test's control for the NeRF's soft edges (docs/imagery.md).
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import argparse
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 
@@ -56,6 +61,16 @@ def swapped_views(colour_from: dict, height_from: dict) -> dict[str, np.ndarray]
     }
 
 
+def blurred(colour: np.ndarray, sigma: float) -> np.ndarray:
+    """Views' colour [V, H, W, 3] uint8, each blurred by a Gaussian of `sigma` pixels (borders
+    reflected); `sigma` 0 returns them as they are."""
+    if sigma < 0:
+        raise ValueError(f"a blur's sigma is at least 0 pixels, got {sigma}")
+    if sigma == 0:
+        return colour
+    return np.stack([cv2.GaussianBlur(view, (0, 0), sigma) for view in colour])
+
+
 def build_swap_cache(
     specs: dict[str, EvaluationSpec],
     colour: str,
@@ -63,8 +78,10 @@ def build_swap_cache(
     seeds: list[int],
     source: ImageryCache,
     target: ImageryCache,
+    colour_blur: float = 0.0,
 ) -> None:
-    """Write each seed's swapped views into `target` under the key of `specs["nerf"]`."""
+    """Write each seed's swapped views (the colour blurred by `colour_blur` pixels) into `target`
+    under the key of `specs["nerf"]`."""
     nerf = specs["nerf"]
     with progress_bar(len(seeds), f"compose {colour} colour + {height} height") as bar:
         for seed in seeds:
@@ -78,6 +95,7 @@ def build_swap_cache(
                         f"--split test --imagery {kind} --setting {nerf.setting}` first"
                     )
             views = swapped_views(parts[colour], parts[height])
+            views["colour"] = blurred(views["colour"], colour_blur)
             target.save(nerf.task, nerf.setting, seed, nerf.imagery_key(), views)
             bar.update()
 
@@ -89,6 +107,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--setting", default=None, help="test setting (default: the training one)")
     parser.add_argument("--colour", choices=IMAGERY_KINDS, required=True)
     parser.add_argument("--height", choices=IMAGERY_KINDS, required=True)
+    parser.add_argument(
+        "--colour-blur",
+        type=float,
+        default=0.0,
+        metavar="SIGMA",
+        help="blur the colour half by a Gaussian of SIGMA pixels (with --colour oracle --height "
+        "oracle: what a blur alone costs)",
+    )
     parser.add_argument("--episodes", type=int, default=100, help="the first test seeds")
     parser.add_argument("--cache-dir", default=DEFAULT_CACHE_DIR, help="the cache read from")
     parser.add_argument(
@@ -104,11 +130,17 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     options = dict(args.imagery_option)
-    if args.colour == args.height:
-        parser.error("--colour and --height name the same imagery: that is a plain test")
+    if args.colour_blur < 0:
+        parser.error(f"--colour-blur: a sigma is at least 0 pixels, got {args.colour_blur}")
+    if args.colour == args.height and not args.colour_blur:
+        parser.error(
+            "--colour and --height name the same imagery: that is a plain test (or give "
+            "--colour-blur)"
+        )
+    blur = f"-blur{args.colour_blur:g}" if args.colour_blur else ""
     swap_dir = (
         args.swap_cache
-        / f"{args.colour}-colour-{args.height}-height{imagery_options_suffix(options)}"
+        / f"{args.colour}-colour{blur}-{args.height}-height{imagery_options_suffix(options)}"
     )
     try:
         [(_, checkpoint)] = chosen_checkpoints(args.run_dir, [args.checkpoint])
@@ -132,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
             seeds,
             ImageryCache(args.cache_dir),
             ImageryCache(swap_dir),
+            args.colour_blur,
         )
         [record] = evaluate_checkpoints(
             args.run_dir,
@@ -149,6 +182,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"imagery_swap: {error}", file=sys.stderr)
         return 1
     record["imagery_swap"] = {"colour": args.colour, "height": args.height}
+    if args.colour_blur:
+        record["imagery_swap"]["colour_blur_px"] = args.colour_blur
     if options:
         record["imagery_swap"]["imagery_options"] = options
     write_json(args.record, record)
