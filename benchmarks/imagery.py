@@ -280,14 +280,15 @@ def measure_cached_scene(
     the cache where a seed's imagery is not there."""
     loaded = {}
     for spec in (nerf, oracle):
-        loaded[spec.imagery] = cache.load(spec.task, spec.setting, seed, spec.imagery_key())
+        key = spec.imagery_key()
+        loaded[spec.imagery] = cache.load(spec.task, spec.setting, seed, key)
         if loaded[spec.imagery] is None:
             options = "".join(
                 f" --imagery-option {key}={value}" for key, value in nerf.imagery_options.items()
             )
             raise SystemExit(
                 f"no cached {spec.imagery} imagery of {spec.task} ({spec.setting}) test seed {seed} "
-                f"under {cache.root} (key {spec.imagery_key()}); build it with `nerf-transporter "
+                f"under {cache.root} (key {key}); build it with `nerf-transporter "
                 f"evaluate-checkpoints ... --split test --imagery {spec.imagery}"
                 + (options if spec.imagery == "nerf" else "")
                 + "` or, for the imagery a config names, `nerf-transporter cache-imagery`"
@@ -373,11 +374,11 @@ def summarise(per_scene: list[dict], keys: tuple[str, ...], by_tilt: bool) -> di
 SCORE_KEYS = ("psnr_db", "height_mae_mm", "object_height_mae_mm", "height_mae_grid_mm")
 
 
-def score_cache(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
-    """`--cached`: the cached NeRF imagery of each task's first test seeds against the simulator's."""
-    options = dict(args.imagery_option)
-    if args.iterations is not None:
-        options["iterations"] = args.iterations
+def score_cache(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, options: dict[str, Any]
+) -> int:
+    """`--cached`: the cached NeRF imagery (of the fit settings `options`) of each task's first
+    test seeds against the simulator's."""
     cache = ImageryCache(args.cached)
     per_scene = []
     try:
@@ -446,17 +447,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true", help="last line: one JSON object")
     args = parser.parse_args(argv)
 
-    overrides = dict(args.imagery_option)
-    overrides.update(progress=False, threads=args.threads, device=args.device)
+    options = dict(args.imagery_option)
     if args.iterations is not None:
-        overrides["iterations"] = args.iterations
+        options["iterations"] = args.iterations
+    overrides = options | {"progress": False, "threads": args.threads, "device": args.device}
     datasets = args.dataset or []
     if datasets and args.rig != "default":
         parser.error("--rig: a dataset's views are stored; the rig applies to --task scenes")
     if args.cached and (datasets or args.rig != "default"):
         parser.error("--cached scores cached imagery of --task scenes: no --dataset, no --rig")
     if args.cached:
-        return score_cache(parser, args)
+        return score_cache(parser, args, options)
     try:
         config = dataset_config(datasets[0], overrides) if datasets else ImageryConfig(**overrides)
     except (TypeError, ValueError) as error:
