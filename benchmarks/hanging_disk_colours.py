@@ -8,6 +8,8 @@ by the disk's colour, to show which colours a policy misses: each entry is the s
 episodes and, in brackets, the picks that touched nothing (the episode's failure "pick: the suction
 tip touched no movable object"). Test records of `evaluate-checkpoints` (one checkpoint on
 another imagery, `--imagery oracle` or `--imagery-option ...`) are rows too, named by their file.
+Every file named is a row (two fits of one row, a sweep's beside the table's, with the file's path
+where their labels agree); a folder gives the newest cell of each of its rows, as the table does.
 The cells must be of this checkout's world, whose seeds build the scenes replayed here.
 
     OMP_NUM_THREADS=1 PYTHONPATH=src python benchmarks/hanging_disk_colours.py \
@@ -21,8 +23,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections import Counter
 from pathlib import Path
 
+from nerf_transporter.experiments.cells import load_record
 from nerf_transporter.experiments.failures import load_records
 from nerf_transporter.experiments.report import seed_outcomes
 from nerf_transporter.sim import make_env
@@ -90,8 +94,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--json", action="store_true", help="end with one JSON line")
     args = parser.parse_args(argv)
-    cells, test_records = load_records(args.cells)
-    cells = [cell for cell in cells + test_records if cell["task"] == TASK]
+    try:  # the newest cell a row of each folder, as the table; every file named, as given
+        cells, _ = load_records([path for path in args.cells if not path.is_file()])
+        cells += [load_record(path) for path in args.cells if path.is_file()]
+    except (OSError, ValueError) as error:  # a cell or record it cannot read
+        print(f"hanging_disk_colours.py: {error}", file=sys.stderr)
+        return 2
+    cells = [cell for cell in cells if cell["task"] == TASK]
     if not cells:
         print(f"no {TASK} cells among {', '.join(map(str, args.cells))}", file=sys.stderr)
         return 1
@@ -107,12 +116,15 @@ def main(argv: list[str] | None = None) -> int:
     header = " | ".join(f"{c} disk ({scenes[c]} scenes)" for c in TEST_COLORS)
     print(f"| cell | all | {header} |\n| --- | --- |{' --- |' * len(TEST_COLORS)}")
     summary = []
+    labels = Counter(cell_label(cell) for cell in cells)
     for cell in cells:
         counts = by_disk_colour(cell, colours)
         wins, missed = (sum(tally[k] for tally in counts.values()) for k in (0, 2))
         parts = " | ".join(f"{s}/{n} ({m})" for s, n, m in counts.values())
-        print(f"| {cell_label(cell)} | {wins}/{len(seed_outcomes(cell))} ({missed}) | {parts} |")
-        summary.append({"cell": str(cell["path"]), "label": cell_label(cell), "by_disk": counts})
+        label = cell_label(cell)
+        label = f"{label}, {cell['path']}" if labels[label] > 1 else label
+        print(f"| {label} | {wins}/{len(seed_outcomes(cell))} ({missed}) | {parts} |")
+        summary.append({"cell": str(cell["path"]), "label": label, "by_disk": counts})
     if args.json:
         print(json.dumps({"colours": {str(s): colours[s] for s in seeds}, "cells": summary}))
     return 0

@@ -56,6 +56,17 @@ def test_test_scenes_draw_the_evaluation_colours_and_each_outcome_is_counted_onc
     assert (
         "| transporter_se2 +colour (6000 steps, lr 0.0003) | 1/2 (1) |" in capsys.readouterr().out
     )
+    sweep = tmp_path / "sweep" / "transporter_se2.json"  # another fit of the same row
+    sweep.parent.mkdir()
+    sweep.write_text(json.dumps(cell))
+    del cell["protocol"]["colour_augment"]  # a fit of the same row without it: its own label
+    sweep.write_text(json.dumps(cell))
+    assert script.main([str(path), str(sweep)]) == 0  # every file named is a row
+    out = capsys.readouterr().out
+    assert "| transporter_se2 +colour (6000 steps, lr 0.0003) | 2/6 (1) |" in out
+    assert "| transporter_se2 | 2/6 (1) |" in out
+    assert script.main([str(sweep), str(sweep)]) == 0  # the same label twice: named by its path
+    assert f"| transporter_se2, {sweep} | 2/6 (1) |" in capsys.readouterr().out
 
 
 def test_a_test_record_is_a_row_named_by_its_file_and_imagery(tmp_path):

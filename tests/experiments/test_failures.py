@@ -1,6 +1,7 @@
 """`nerf-transporter failures`: each failed test episode of a cell, judged from its replayed scene."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -175,6 +176,20 @@ def test_a_cell_of_another_world_or_without_episodes_is_refused(scene, tmp_path,
     assert "other.json lacks method" in capsys.readouterr().err
     assert cli_main(["failures", str(tmp_path / "nothing")]) == 2
     assert "no such directory" in capsys.readouterr().err
+
+
+def test_two_cell_files_of_one_row_and_column_are_refused_not_one_dropped(scene, tmp_path, capsys):
+    """Two sweeps' cells of one row (a recipe beside the table's): the table keeps one cell a
+    row and column, so naming both is an error that names them, never a silently shorter table."""
+    record = _cell(tmp_path, [_episode(scene[1], True)])
+    sweep = tmp_path / "sweep" / "block-insertion" / "mira.json"
+    sweep.parent.mkdir(parents=True)
+    sweep.write_text(Path(record["path"]).read_text())
+    assert cli_main(["failures", record["path"], str(sweep), "--no-progress"]) == 2
+    error = capsys.readouterr().err
+    assert "are both the mira cell of block-insertion" in error
+    assert str(sweep) in error and record["path"] in error
+    assert cli_main(["failures", record["path"], record["path"], "--no-progress"]) == 0
 
 
 def test_a_test_record_is_analysed_after_the_cells_named_by_its_file_and_not_paired(

@@ -441,13 +441,33 @@ def load_records(paths: list[Path]) -> tuple[list[dict[str, Any]], list[dict[str
     """The cells, in table order: run-cell's of this checkout's world in the folders given
     (`<folder>/<column>/<row>.json`, as `results/`; archived worlds left out) and the cell files
     given; then the test records among the files given, in their order. Each checked
-    (`experiments/cells.py`), with its path under "path"."""
+    (`experiments/cells.py`), with its path under "path". A table holds one cell a row and
+    column: two cell files given for the same one (two sweeps' cells of one row) are refused,
+    never one of them dropped unsaid."""
     folders = [path for path in paths if not path.is_file()]
     cells = [record for record in find_records(folders).records if "protocol" in record]
     files = [load_record(path) for path in paths if path.is_file()]
     cells += [record for record in files if "protocol" in record]
     tests = [record for record in files if "protocol" not in record]
-    return [record for _, record in in_table_order(cells)], tests
+    kept = [record for _, record in in_table_order(cells)]
+    kept_files = {Path(record["path"]).resolve() for record in kept}
+    for record in files:
+        if "protocol" in record and Path(record["path"]).resolve() not in kept_files:
+            other = next(other for other in kept if _same_cell(other, record))
+            row = row_key(record["method"], record.get("imagery"))
+            raise ValueError(
+                f"{record['path']} and {other['path']} are both the {row} cell of "
+                f"{column_name(*column_of(record))}: name one of them at a time"
+            )
+    return kept, tests
+
+
+def _same_cell(first: dict[str, Any], second: dict[str, Any]) -> bool:
+    """Whether two cells stand in the same row and column of a table."""
+    return (row_key(first["method"], first.get("imagery")), *column_of(first)) == (
+        row_key(second["method"], second.get("imagery")),
+        *column_of(second),
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
