@@ -307,6 +307,22 @@ def test_a_cell_resumes_its_fit_skips_when_measured_and_refuses_another_protocol
     assert json.loads(cell.read_text())["created"] != created
 
 
+def test_a_sweep_cell_names_every_setting_it_changes_from_the_tables_cell(fakes, capsys):
+    """A sweep meant to change one knob says, before it fits, every setting in which it differs
+    from the table's cell of its row and column: an overlay of the cell's left out shows."""
+    run(table=Path("results"))  # the table's cell itself: nothing to compare with
+    assert "differs from the table's cell" not in capsys.readouterr().out
+    run(results=Path("sweep"), lr=0.0003, table=Path("results"))
+    out = capsys.readouterr().out
+    assert (
+        "this protocol differs from the table's cell results/block-insertion/mira-oracle.json "
+        "in lr (the cell: " in out
+    )
+    assert "this: 0.0003)" in out and "steps" not in out  # only what differs
+    run(results=Path("sweep"), lr=0.0003, table=Path("results"))  # measured: skipped, silent
+    assert "differs" not in capsys.readouterr().out
+
+
 def test_an_interrupted_force_resumes_its_own_fit_and_a_finished_one_fits_afresh(fakes):
     run()
     runs = next(Path("logs/cells/block-insertion/mira-oracle").iterdir())

@@ -457,6 +457,39 @@ def cell_path(results: Path, protocol: dict[str, Any]) -> Path:
     return results / column / f"{row}.json"
 
 
+def _flat(settings: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested settings as one level of dotted keys."""
+    flat = {}
+    for key, value in settings.items():
+        if isinstance(value, dict):
+            flat |= _flat(value, f"{prefix}{key}.")
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def table_differences(protocol: dict[str, Any], table_cell: Path) -> str | None:
+    """How a sweep's `protocol` differs from the table's cell `table_cell` of its row and column
+    (each differing setting, the cell's value and this one's; "-" where one has none), or None
+    where there is no readable cell there or nothing differs. A sweep meant to change one knob
+    shows here every other one it changed too (an overlay of the cell's left out, say)."""
+    try:
+        cell_protocol_ = json.loads(table_cell.read_text())["protocol"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    ours, theirs = _flat(protocol), _flat(cell_protocol_)
+    changed = [
+        f"{key} (the cell: {theirs.get(key, '-')}; this: {ours.get(key, '-')})"
+        for key in sorted(ours.keys() | theirs.keys())
+        if ours.get(key, "-") != theirs.get(key, "-")
+    ]
+    if not changed:
+        return None
+    return f"run-cell: this protocol differs from the table's cell {table_cell} in " + ", ".join(
+        changed
+    )
+
+
 def stored_protocol(cell: dict[str, Any], input_kind: str) -> dict[str, Any]:
     """A stored cell's protocol as this code reads it from the cell's resolved config (its fit's,
     tested in the cell's setting for a cross-setting cell), so that a cell written before the
@@ -808,12 +841,15 @@ def run_cell(
     eval_workers: int | None = None,
     device: str | None = None,
     fit_only: bool = False,
+    table: Path | None = None,
 ) -> tuple[Path, dict[str, Any] | None]:
     """Run one cell (see the module's docstring): trained in `setting`, tested in `test_setting`
     (default: `setting`). Returns (cell path, cell record); the record is None where the cell was
     already measured under this protocol, and holds no cell (nothing written) where test episodes
     erred (`errors` > 0). With `fit_only` (a machine without PyBullet): only the fit,
-    `without_closed_loop`; returns (run folder, None)."""
+    `without_closed_loop`; returns (run folder, None). With `table` (the table's cell folder)
+    other than `results` (a sweep), it first prints how this protocol differs from the table's
+    cell of the same row and column, where there is one (`table_differences`)."""
     if method not in METHODS:
         raise CellError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
     test_setting = test_setting or setting
@@ -847,6 +883,9 @@ def run_cell(
     fit_cell = cell_path(results, fit_protocol) if cross else None  # the cell that names its fit
     if not force and measured(path, protocol, input_kind, fit_cell):
         return path, None
+    sweep = table is not None and table.resolve() != results.resolve()
+    if sweep and (differences := table_differences(protocol, cell_path(table, protocol))):
+        print(differences)
     runs = fit_folder(logs, fit_protocol)
     folders = [("fit runs", runs)]
     if not fit_only:
@@ -1047,7 +1086,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--val-every", type=int, help="steps between validation rounds")
     parser.add_argument("--val-episodes", type=int, help="validation episodes per round")
     add_config_arguments(parser, "the task's and the method's")
-    parser.add_argument("--results", type=Path, default=Path("results"), help="cell folder")
+    parser.add_argument(
+        "--results",
+        type=Path,
+        default=Path("results"),
+        help="cell folder; another than results/ is a sweep's, and run-cell first prints every "
+        "setting in which its protocol differs from the table's cell in results/",
+    )
     parser.add_argument("--logs", type=Path, default=Path("logs/cells"), help="fit runs folder")
     parser.add_argument(
         "--force",
@@ -1090,6 +1135,7 @@ def main(argv: list[str] | None = None) -> int:
             eval_workers=args.eval_workers,
             device=args.device,
             fit_only=args.fit_only,
+            table=Path("results"),
         )
     except (CellError, FileNotFoundError, UnwritableError, UntrustedCheckpointError) as error:
         print(f"nerf-transporter run-cell: {error}", file=sys.stderr)
