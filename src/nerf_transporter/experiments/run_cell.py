@@ -474,10 +474,10 @@ def table_differences(protocol: dict[str, Any], table_cell: Path) -> str | None:
     where there is no readable cell there or nothing differs. A sweep meant to change one knob
     shows here every other one it changed too (an overlay of the cell's left out, say)."""
     try:
-        cell_protocol_ = json.loads(table_cell.read_text())["protocol"]
+        table_protocol = json.loads(table_cell.read_text())["protocol"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
-    ours, theirs = _flat(protocol), _flat(cell_protocol_)
+    ours, theirs = _flat(protocol), _flat(table_protocol)
     changed = [
         f"{key} (the cell: {theirs.get(key, '-')}; this: {ours.get(key, '-')})"
         for key in sorted(ours.keys() | theirs.keys())
