@@ -284,7 +284,7 @@ def measure_cached_scene(
         loaded[spec.imagery] = cache.load(spec.task, spec.setting, seed, key)
         if loaded[spec.imagery] is None:
             options = "".join(
-                f" --imagery-option {key}={value}" for key, value in nerf.imagery_options.items()
+                f" --imagery-option {name}={value}" for name, value in nerf.imagery_options.items()
             )
             raise SystemExit(
                 f"no cached {spec.imagery} imagery of {spec.task} ({spec.setting}) test seed {seed} "

@@ -56,6 +56,7 @@ from nerf_transporter.evaluation.view_search import view_search_text
 from nerf_transporter.experiments.cells import find_records, load_record, row_key, trained_setting
 from nerf_transporter.experiments.report import (
     METHODS,
+    cell_key,
     column_name,
     column_of,
     in_table_order,
@@ -453,21 +454,13 @@ def load_records(paths: list[Path]) -> tuple[list[dict[str, Any]], list[dict[str
     kept_files = {Path(record["path"]).resolve() for record in kept}
     for record in files:
         if "protocol" in record and Path(record["path"]).resolve() not in kept_files:
-            other = next(other for other in kept if _same_cell(other, record))
+            other = next(other for other in kept if cell_key(other) == cell_key(record))
             row = row_key(record["method"], record.get("imagery"))
             raise ValueError(
                 f"{record['path']} and {other['path']} are both the {row} cell of "
                 f"{column_name(*column_of(record))}: name one of them at a time"
             )
     return kept, tests
-
-
-def _same_cell(first: dict[str, Any], second: dict[str, Any]) -> bool:
-    """Whether two cells stand in the same row and column of a table."""
-    return (row_key(first["method"], first.get("imagery")), *column_of(first)) == (
-        row_key(second["method"], second.get("imagery")),
-        *column_of(second),
-    )
 
 
 def main(argv: list[str] | None = None) -> int:

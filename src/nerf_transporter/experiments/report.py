@@ -136,13 +136,18 @@ def _column_order(column: Column) -> tuple:
     return _rank(column[0], TASK_NAMES), _rank(column[2], SETTINGS), _rank(column[1], SETTINGS)
 
 
+def cell_key(record: dict) -> tuple[str, str, str, str]:
+    """(row, task, setting, trained setting): the table cell a record stands in (`row_key` names
+    the row, `column_of` the rest)."""
+    return (row_key(record["method"], record.get("imagery")), *column_of(record))
+
+
 def newest_records(records: list[dict]) -> dict[tuple[str, str, str, str], dict]:
-    """(row, task, setting, trained setting) -> the newest record of that cell (`row_key` names
-    the row, `column_of` the rest); a cell outranks any test record."""
+    """`cell_key` -> the newest record of that cell; a cell outranks any test record."""
     newest: dict[tuple[str, str, str, str], dict] = {}
     ranked = sorted(records, key=lambda r: ("protocol" in r, r.get("created", ""), r["path"]))
     for record in ranked:
-        newest[(row_key(record["method"], record.get("imagery")), *column_of(record))] = record
+        newest[cell_key(record)] = record
     return newest
 
 
