@@ -360,8 +360,10 @@ def test_validation_plots_and_tables_hold_each_cell_with_rounds(tmp_path, capsys
 
 
 REPO = Path(__file__).resolve().parents[2]
-# a real cell (today's results/ or, once archived, results/archive/world-<fingerprint>/), copied
-REAL_CELL = REPO / "results" / "archive" / "world-cebd2134fda05fac" / "block-insertion" / "mira.json"
+# a real cell, copied: the archived world's block-insertion mira cell (77 of 100)
+REAL_CELL = (
+    REPO / "results" / "archive" / "world-cebd2134fda05fac" / "block-insertion" / "mira.json"
+)
 
 
 def real_cell(root, world=None, **edits):
