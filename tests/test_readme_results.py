@@ -11,6 +11,7 @@ from nerf_transporter.experiments.report import (
     RESULTS_DOC_START,
     markdown,
     measured_cells,
+    mixed_recipes,
     readme_block,
     replace_block,
     results_doc_block,
@@ -55,3 +56,11 @@ def test_the_archived_worlds_page_holds_the_table_report_renders_for_it():
             f"docs/archive/results.md lacks the table of world {archive.world}: paste it from "
             "`nerf-transporter report results/`"
         )
+
+
+def test_the_committed_table_and_each_earlier_recipe_are_one_recipe_a_row():
+    found = find_records([REPO / "results"])
+    assert mixed_recipes(found.records) == [], "a refitted row's earlier cells go to the archive"
+    for archive in found.archives:
+        if archive.recipe is not None:
+            assert mixed_recipes(archive.cells) == [], archive.folder

@@ -599,3 +599,34 @@ def test_the_results_page_pairs_mira_with_each_row_on_their_common_seeds(tmp_pat
     assert table[[line.split(" | ")[0] for line in table].index("| Form2Fit")].endswith(
         "|  |  |  |  |  |  |"
     )
+
+
+def test_report_names_a_row_or_column_that_mixes_recipes(tmp_path, capsys):
+    """A row refitted on a new recipe beside a cell of the old one, or one image row of a column
+    with colour augmentation and another without: named on stderr, the table printed still."""
+    results = tmp_path / "results"
+    for task in ("block-insertion", "place-red-in-green"):
+        for row in ("mira", "transporter_se2", "gt_state_mlp"):
+            write_cell(results, row, task, "normal", 50, 100)
+    assert report_main([str(results)]) == 0
+    assert "mixes recipes" not in capsys.readouterr().err
+
+    def edit(path, **protocol):
+        cell = json.loads(path.read_text())
+        cell["protocol"] |= protocol
+        path.write_text(json.dumps(cell))
+
+    edit(results / "place-red-in-green" / "mira.json", view_choice="view_softmax")
+    edit(results / "block-insertion" / "transporter_se2.json", colour_augment=True)
+    edit(results / "block-insertion" / "gt_state_mlp.json", colour_augment=True)  # reads no image
+    assert report_main([str(results)]) == 0
+    out, err = capsys.readouterr()
+    assert "| mira (ours) | 50% (100, 40-60) / - |" in out
+    assert (
+        'row mira (ours): view_choice: "-" in block-insertion; "view_softmax" in '
+        "place-red-in-green\n"
+    ) in err
+    assert (
+        "column block-insertion: colour_augment: false in mira (ours); true in Transporter-SE(2)"
+    ) in err
+    assert "GT-State MLP" not in err and "row Transporter-SE(2)" not in err

@@ -16,6 +16,8 @@ of our rows, the paper's Table 1 value of that method under the column its table
 kept under `<root>/archive/world-<fingerprint>/`, follow in a table of their own under the heading
 "Archived world <fingerprint>", never in this world's table; so do this world's cells of an
 earlier training recipe, kept under `<root>/archive/recipe-<name>/`, under "Earlier recipe <name>".
+A table that mixes recipes (a row whose cells differ beyond their columns, or a column whose image
+rows differ in colour augmentation: `mixed_recipes`) is printed still, and named on stderr.
 `--plot` draws the table as bars with their intervals and the paper's values as markers;
 `--validation-plots DIR` draws each column's validation success against training steps (the budget
 study, `docs/budget.md`) and `--validation-tables` prints them. `--readme` rewrites the README's
@@ -30,6 +32,7 @@ from __future__ import annotations
 import argparse
 import csv
 import io
+import json
 import sys
 from collections import Counter
 from collections.abc import Sequence
@@ -149,6 +152,58 @@ def newest_records(records: list[dict]) -> dict[tuple[str, str, str, str], dict]
     for record in ranked:
         newest[cell_key(record)] = record
     return newest
+
+
+# protocol keys that belong to a cell's column, not to its row's recipe
+COLUMN_KEYS = ("task", "setting", "trained_setting", "fit_protocol_id", "colour_augment")
+STATE_ROWS = ("gt_state_mlp",)  # rows that read no image: colour augmentation is no knob of theirs
+
+
+def _differences(cells: dict[str, dict]) -> list[str]:
+    """ "<key>: <value> in <cell>, <cell>; <value> in <cell>" for each setting in which the named
+    protocols `cells` disagree ("-" where one has none)."""
+    keys = sorted({key for protocol in cells.values() for key in protocol})
+    texts = []
+    for key in keys:
+        by_value: dict[str, list[str]] = {}
+        for name, protocol in cells.items():
+            by_value.setdefault(json.dumps(protocol.get(key, "-")), []).append(name)
+        if len(by_value) > 1:
+            texts.append(
+                f"{key}: " + "; ".join(f"{v} in {', '.join(n)}" for v, n in by_value.items())
+            )
+    return texts
+
+
+def mixed_recipes(records: list[dict]) -> list[str]:
+    """Where a table mixes recipes, one line each: a row whose cells differ in a setting that is
+    not their column's (budget, learning rate, architecture, training settings, view choice,
+    imagery), or a column whose image rows differ in colour augmentation. [] for a table of one
+    recipe (an earlier recipe's cells belong under `<results>/archive/recipe-<name>/`)."""
+    rows: dict[str, dict[str, dict]] = {}
+    columns: dict[Column, dict[str, dict]] = {}
+    for (row, *column), record in newest_records(records).items():
+        protocol = record.get("protocol")
+        if protocol is None:
+            continue
+        name = column_name(*column)
+        rows.setdefault(row, {})[name] = {
+            key: value for key, value in protocol.items() if key not in COLUMN_KEYS
+        }
+        if row not in STATE_ROWS:
+            augment = {"colour_augment": protocol.get("colour_augment", False)}
+            columns.setdefault(tuple(column), {})[METHODS.get(row, row)] = augment
+    lines = [
+        f"row {METHODS.get(row, row)}: {text}"
+        for row, cells in rows.items()
+        for text in _differences(cells)
+    ]
+    lines += [
+        f"column {column_name(*column)}: {text}"
+        for column, cells in columns.items()
+        for text in _differences(cells)
+    ]
+    return lines
 
 
 def table_columns(newest: dict[tuple[str, str, str, str], dict]) -> list[Column]:
@@ -638,6 +693,13 @@ def main(argv: list[str] | None = None) -> int:
             f"nerf-transporter report: left out {len(found.left_out)} test record(s) under a "
             "folder of cells (not cells of the table): "
             + ", ".join(str(path) for path in found.left_out),
+            file=sys.stderr,
+        )
+    if mixed := mixed_recipes(records):
+        print(
+            "nerf-transporter report: the table mixes recipes (one recipe a row; an earlier "
+            "recipe's cells go to <results>/archive/recipe-<name>/, docs/results.md):\n  "
+            + "\n  ".join(mixed),
             file=sys.stderr,
         )
     if not records:
