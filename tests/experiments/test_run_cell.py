@@ -719,9 +719,7 @@ def committed_cells() -> list[Path]:
 def test_every_committed_cell_keeps_its_protocol_and_id():
     cells = committed_cells()
     table = [path for path in cells if "sweep" not in path.relative_to(REPO).parts]
-    # the 36 cells of the heightmap and state rows (8 columns and the trained-Challenging one),
-    # and mira's as they are refitted on the table's recipe (and the sweeps')
-    assert len(table) >= 36
+    assert len(table) == 54  # the 48 cells of the table and 6 trained Challenging (and the sweeps')
     for path in cells:
         cell = load_cell(path)
         recomputed = cell_module.stored_protocol(cell, METHODS[cell["method"]].input_kind)
