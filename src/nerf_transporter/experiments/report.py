@@ -160,8 +160,8 @@ STATE_ROWS = ("gt_state_mlp",)  # rows that read no image: colour augmentation i
 
 
 def _differences(cells: dict[str, dict]) -> list[str]:
-    """ "<key>: <value> in <cell>, <cell>; <value> in <cell>" for each setting in which the named
-    protocols `cells` disagree ("-" where one has none)."""
+    """Each setting in which the named protocols `cells` disagree, as `<key>: <value> in <cell>,
+    <cell>; <value> in <cell>` ("-" where a protocol has none)."""
     keys = sorted({key for protocol in cells.values() for key in protocol})
     texts = []
     for key in keys:
