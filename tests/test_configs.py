@@ -315,16 +315,23 @@ def test_the_shared_recipe_knobs_stack_on_transporter_se2():
     assert {key: config[key] for key in shared} == {key: MIRA_RECIPE[key] for key in shared}
 
 
-def test_the_imagery_candidate_overlay_trains_on_data_of_its_own():
-    _, default = resolve("hanging_disks.yaml")
-    _, candidate = resolve("hanging_disks.yaml", "imagery/table_start.yaml")
-    scene = candidate.datamodule.generation_config("train").scene
-    assert (scene.imagery_config().colour_init, scene.imagery_config().sparsity_weight) == (
-        "table",
-        0.0003,
-    )
-    names = [
-        cli.datamodule.generation_config("train").dataset_name() for cli in (default, candidate)
+def test_the_imagery_overlays_train_on_data_of_their_own():
+    """The default imagery (the table-colour start) and each overlay: data of its own; the
+    reference overlay takes back the data every earlier cell was trained on."""
+    clis = [
+        resolve("hanging_disks.yaml", *overlay)[1]
+        for overlay in ((), ("imagery/reference.yaml",), ("imagery/full_resolution_1600.yaml",))
     ]
-    assert names[0] == "hanging-disks-normal-train"
-    assert names[1].startswith("hanging-disks-normal-train-imagery")
+    scenes = [cli.datamodule.generation_config("train").scene for cli in clis]
+    assert [
+        (s.imagery_config().colour_init, s.imagery_config().sparsity_weight) for s in scenes
+    ] == [
+        ("table", 0.0003),
+        ("grey", 0.003),
+        ("table", 0.0003),
+    ]
+    assert scenes[2].imagery_config().iterations == 1600
+    names = [cli.datamodule.generation_config("train").dataset_name() for cli in clis]
+    assert names[1] == "hanging-disks-normal-train"
+    assert all(name.startswith("hanging-disks-normal-train-imagery") for name in names[::2])
+    assert len(set(names)) == 3

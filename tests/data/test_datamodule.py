@@ -234,3 +234,33 @@ def test_a_fit_resumed_mid_epoch_trains_as_the_uninterrupted_fit(fake_world, tmp
     resumed = fit(6, ckpt_path=mid_epoch)
     for name, value in straight.state_dict().items():
         torch.testing.assert_close(resumed.state_dict()[name], value, msg=name)
+
+
+@pytest.mark.parametrize(
+    ("recorded", "changes"),
+    [
+        # written before checkpoints named their imagery: trained on the reference imagery
+        ({}, {}),
+        ({"iterations": 800}, {"iterations": 800}),
+        # written since: the default imagery's changes, named
+        (None, {"colour_init": "table", "sparsity_weight": 0.0003}),
+    ],
+)
+def test_a_checkpoint_is_read_back_on_the_imagery_it_was_trained_on(tmp_path, recorded, changes):
+    """Whatever this code's imagery defaults: a policy tested on imagery other than its training's
+    fails where it would succeed (a hanging-disks checkpoint: 16 -> 2 of 100, docs/imagery.md)."""
+    datamodule = RavensDataModule(
+        task="hanging-disks", data_dir=str(tmp_path), generate_missing=False
+    )
+    hparams = dict(datamodule.hparams)
+    if recorded is not None:
+        hparams["imagery_config"] = recorded
+    checkpoint = {"pytorch-lightning_version": pl.__version__}
+    torch.save(checkpoint | {"datamodule_hyper_parameters": hparams}, tmp_path / "a.ckpt")
+    restored = RavensDataModule.load_from_checkpoint(tmp_path / "a.ckpt", weights_only=True)
+    scene = restored.generation_config("test").scene
+    assert scene.imagery_changes() == changes
+    # and saved again, it names the same imagery
+    torch.save(checkpoint | {"datamodule_hyper_parameters": dict(restored.hparams)}, tmp_path / "b")
+    again = RavensDataModule.load_from_checkpoint(tmp_path / "b", weights_only=True)
+    assert again.generation_config("test").scene.imagery_changes() == changes

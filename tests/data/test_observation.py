@@ -11,7 +11,7 @@ from nerf_transporter.data import episode as ep
 from nerf_transporter.data import observation as observation_module
 from nerf_transporter.data.generate import GenerationConfig, generate_dataset
 from nerf_transporter.data.heightmap import heightmap_from_rgbd
-from nerf_transporter.data.observation import SceneSpec, observation
+from nerf_transporter.data.observation import SceneSpec, observation, reference_imagery_options
 from nerf_transporter.evaluation.rollout import EvaluationSpec, Evaluator
 from nerf_transporter.imagery import ImageryConfig
 from nerf_transporter.splits import split_seed
@@ -56,32 +56,40 @@ def test_runtime_imagery_options_change_neither_the_dataset_nor_the_cache_key():
     assert fast.imagery_description()["iterations"] == ImageryConfig().iterations
 
 
-def test_an_imagery_setting_at_its_old_behaviour_keeps_every_dataset_and_cache_key():
+def test_the_reference_imagery_keeps_every_dataset_and_cache_key_it_was_built_under():
     """colour_init came after the datasets and caches were built under its "grey": at that value
-    it is left out of their descriptions; another value is another dataset and cache entry."""
-    plain = SceneSpec("block-insertion", pixel_size=PIXEL)
-    grey = SceneSpec("block-insertion", pixel_size=PIXEL, imagery_options={"colour_init": "grey"})
-    table = SceneSpec("block-insertion", pixel_size=PIXEL, imagery_options={"colour_init": "table"})
+    it is left out of their descriptions. The reference imagery (grey, sparsity 0.003) keeps the
+    plain names; the default (the table-colour start) is another dataset and cache entry, named
+    with a hash of its changes."""
+    reference = {"colour_init": "grey", "sparsity_weight": 0.003}
+    plain = SceneSpec("block-insertion", pixel_size=PIXEL, imagery_options=reference)
+    full = SceneSpec(
+        "block-insertion", pixel_size=PIXEL, imagery_options=reference_imagery_options()
+    )
+    default = SceneSpec("block-insertion", pixel_size=PIXEL)
     assert "colour_init" not in plain.imagery_description()
-    assert grey.imagery_description() == plain.imagery_description()
-    assert table.imagery_description() == plain.imagery_description() | {"colour_init": "table"}
-    keys = {EvaluationSpec(scene=scene).imagery_key() for scene in (plain, grey, table)}
+    assert full.imagery_description() == plain.imagery_description()
+    assert default.imagery_description() == plain.imagery_description() | {
+        "colour_init": "table",
+        "sparsity_weight": 0.0003,
+    }
+    keys = {EvaluationSpec(scene=scene).imagery_key() for scene in (plain, full, default)}
     assert len(keys) == 2
-    # and another dataset, beside the default's: named with a hash of the changed settings
-    names = [GenerationConfig(scene=scene).dataset_name() for scene in (plain, grey, table)]
+    names = [GenerationConfig(scene=scene).dataset_name() for scene in (plain, full, default)]
     assert names[0] == names[1] == "block-insertion-normal-train-px0.0125"
     assert re.fullmatch(r"block-insertion-normal-train-px0\.0125-imagery[0-9a-f]{8}", names[2])
-    assert table.imagery_changes() == {"colour_init": "table"} and plain.imagery_changes() == {}
+    assert plain.imagery_changes() == {}
+    assert default.imagery_changes() == {"colour_init": "table", "sparsity_weight": 0.0003}
 
 
 def test_a_changed_imagery_default_names_data_of_its_own(monkeypatch):
     """The reference imagery, not the code's defaults, names the data: were a default of the
     imagery's settings changed, the data built with it would not take the reference's name."""
     plain = SceneSpec("block-insertion", pixel_size=PIXEL)
-    reference_name = GenerationConfig(scene=plain).dataset_name()
+    default_name = GenerationConfig(scene=plain).dataset_name()
     monkeypatch.setitem(observation_module.REFERENCE_IMAGERY, "iterations", 300)
-    assert plain.imagery_changes() == {"iterations": ImageryConfig().iterations}
-    assert GenerationConfig(scene=plain).dataset_name().startswith(f"{reference_name}-imagery")
+    assert plain.imagery_changes()["iterations"] == ImageryConfig().iterations
+    assert GenerationConfig(scene=plain).dataset_name() != default_name
     monkeypatch.setitem(observation_module.REFERENCE_IMAGERY, "stage_scales", (8, 2, 1))
     assert plain.imagery_changes()["stage_scales"] == [4, 2, 1]  # as JSON gives it back
 

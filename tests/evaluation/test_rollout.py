@@ -274,7 +274,7 @@ def test_imagery_options_test_a_policy_on_an_imagery_candidate(tmp_path):
     assert spec.imagery_config().sparsity_weight == 0.003  # the training's other settings stay
     assert len(list((tmp_path / "cache").rglob("*.npz"))) == 2  # two keys, two fits
     assert not np.array_equal(
-        records["training"]["views"]["height"], records["candidate"]["views"]["height"]
+        records["training"]["views"]["colour"], records["candidate"]["views"]["colour"]
     )
     assert "imagery_options" not in records["training"]
     assert records["candidate"]["imagery_options"] == {"iterations": 20}

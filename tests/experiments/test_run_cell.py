@@ -25,6 +25,7 @@ from nerf_transporter.experiments import run_cell as cell_module
 from nerf_transporter.experiments.cells import CellFileError, find_records, load_cell
 from nerf_transporter.experiments.lightning_cli import build_cli, free_name
 from nerf_transporter.experiments.report import results_table
+from nerf_transporter.experiments.report import run_cell_command as command
 from nerf_transporter.experiments.run_cell import CellError, apply_budget, resolve_config, run_cell
 from nerf_transporter.geometry import view_grid
 from nerf_transporter.methods import METHODS
@@ -730,7 +731,9 @@ def test_every_committed_cell_keeps_its_protocol_and_id():
 
 
 def test_every_committed_cell_is_measured_under_the_command_it_was_run_with(fakes, monkeypatch):
-    """Its options and overlays as README's commands give them, the configs resolved for real."""
+    """Its options and overlays as the results page's commands give them (`run_cell_command`: a
+    NeRF cell of the reference imagery with the overlay that takes it back), the configs resolved
+    for real."""
     monkeypatch.setattr(cell_module, "resolve_config", real_config)
     for path in committed_cells():
         cell = json.loads(path.read_text())
@@ -747,7 +750,7 @@ def test_every_committed_cell_is_measured_under_the_command_it_was_run_with(fake
             episodes=protocol["test_episodes"],
             val_every=protocol["validation_every"],
             val_episodes=protocol["validation_episodes"],
-            overlays=[REPO / overlay for overlay in cell["overlays"]],
+            overlays=[REPO / overlay for overlay in re.findall(r"--config (\S+)", command(cell))],
             config_dir=REPO / "configs",
             results=path.parent.parent,
         )
@@ -855,25 +858,28 @@ def test_nerf_imagery_settings_other_than_the_reference_are_a_protocol_of_their_
     """An imagery overlay and a changed default of the imagery's settings alike: a cell records
     the imagery it was measured on, so a cell of the reference imagery stays what it was."""
     monkeypatch.setattr(cell_module, "resolve_config", real_config)
-    path, record = run(imagery="nerf")
+    reference = [REPO / "configs" / "imagery" / "reference.yaml"]
+    path, record = run(imagery="nerf", overlays=reference)
     assert "imagery_changes" not in record["protocol"]
-    candidate = cell_module.cell_protocol(
+    default = cell_module.cell_protocol(
         real_config(
             cell_module.config_files(REPO / "configs", "block-insertion", "normal", "mira")
-            + [REPO / "configs" / "imagery" / "table_start.yaml"]
         ),
         "mira",
         "imagery",
     )
-    assert candidate["imagery_changes"] == {"colour_init": "table", "sparsity_weight": 0.0003}
-    assert "training" not in candidate  # named once, as imagery
+    assert default["imagery_changes"] == {"colour_init": "table", "sparsity_weight": 0.0003}
+    assert "training" not in default  # named once, as imagery
+    changes = "imagery_changes None there, {'sparsity_weight': 0.0003, 'colour_init': 'table'}"
+    with pytest.raises(CellError, match=re.escape(changes)):
+        run(imagery="nerf")  # the default imagery: not the reference cell's protocol
     # the code's default iterations (400) no longer the reference's: every NeRF fit is another
     monkeypatch.setitem(observation.REFERENCE_IMAGERY, "iterations", 300)
     assert cell_module.stored_protocol(load_cell(path), "imagery") == record["protocol"]
     with pytest.raises(
         CellError, match=re.escape("imagery_changes None there, {'iterations': 400} here")
     ):
-        run(imagery="nerf")
+        run(imagery="nerf", overlays=reference)
     assert "imagery_changes" not in cell_module.cell_protocol(
         record["config"]
         | {"data": {"init_args": record["config"]["data"]["init_args"] | {"imagery": "oracle"}}},

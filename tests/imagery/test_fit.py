@@ -135,17 +135,21 @@ def test_bad_shapes_and_config_are_rejected(scene_and_views):
         ImageryConfig(field="mlp")
     with pytest.raises(ValueError, match="unknown colour_init 'white'"):
         ImageryConfig(colour_init="white")
-    with pytest.raises(ValueError, match="colour_init 'table' is for the dense field only"):
-        ImageryConfig(field="hash", colour_init="table")
 
 
-@pytest.mark.parametrize(("colour_init", "grey"), [("grey", True), ("table", False)])
-def test_the_field_starts_grey_or_at_the_tables_colour(scene_and_views, colour_init, grey):
-    """colour_init="table": before any step the field's colour is the captures' median colour
-    (the floor map's start), so that density changes no rendered colour; "grey": 0.5."""
+@pytest.mark.parametrize(
+    ("field", "colour_init", "grey"),
+    [("dense", "grey", True), ("dense", "table", False), ("hash", "table", False)],
+)
+def test_the_field_starts_grey_or_at_the_tables_colour(scene_and_views, field, colour_init, grey):
+    """colour_init="table" (the default): before any step the field's colour is the captures'
+    median colour (the floor map's start), so that density changes no rendered colour; "grey"
+    (the reference imagery's): 0.5."""
     _, images, intrinsics, poses = scene_and_views
     frozen = dict(learning_rate=0.0, density_learning_rate=0.0, floor_learning_rate=0.0)
-    config = tiny_config(iterations=1, colour_init=colour_init, **frozen)
+    frozen |= dict(hash_learning_rate=0.0, hash_levels=4, hash_log2_table=12)
+    config = tiny_config(iterations=1, field=field, colour_init=colour_init, **frozen)
+    assert ImageryConfig().colour_init == "table"
     fitted = fit_scene(images, intrinsics, poses, config)
     points = torch.tensor([[0.5, 0.0, 0.05], [0.3, -0.2, 0.1]])
     start = fitted.floor(points)  # never trained: the median colour everywhere

@@ -47,7 +47,7 @@ from nerf_transporter.data.labels import (
     labels_from_view_action,
     to_view_frames,
 )
-from nerf_transporter.data.observation import INPUT_KINDS
+from nerf_transporter.data.observation import INPUT_KINDS, reference_imagery_options
 from nerf_transporter.data.preprocess import network_input
 from nerf_transporter.data.seeds import seed_loader
 from nerf_transporter.sim import TASKS, cameras
@@ -375,7 +375,8 @@ class RavensDataModule(pl.LightningDataModule):
             n_rotations,
         )
         self.nerf_views, self.nerf_image_size = nerf_views, tuple(nerf_image_size)
-        self.imagery_config, self.generate_workers = dict(imagery_config or {}), generate_workers
+        self.generate_workers = generate_workers
+        self._set_imagery_config(dict(imagery_config or {}))
         self.test_episodes, self.test_setting = test_episodes, test_setting
         self.test_workers = test_workers
         self.pin_memory = pin_memory
@@ -399,6 +400,24 @@ class RavensDataModule(pl.LightningDataModule):
                 f"input_kind= one of {', '.join(INPUT_KINDS)}"
             )
         return kind
+
+    def _set_imagery_config(self, imagery_config: dict[str, Any]) -> None:
+        """Set the NeRF imagery's settings, and name them in the hyper-parameters a checkpoint
+        keeps as the changes from the reference imagery (with the given settings), so that the
+        checkpoint is read back on the imagery it was trained on (`load_from_checkpoint`)."""
+        self.imagery_config = imagery_config
+        changes = self.generation_config("train").scene.imagery_changes()
+        self.hparams["imagery_config"] = {**imagery_config, **changes}
+
+    @classmethod
+    def load_from_checkpoint(cls, checkpoint_path: Any, *args: Any, **kwargs: Any) -> Any:
+        """Lightning's, with the NeRF imagery the checkpoint was trained on whatever this code's
+        defaults: the reference imagery (`reference_imagery_options`) with the settings the
+        checkpoint names (one written before checkpoints named them names only those its config
+        set, and was trained on the reference)."""
+        datamodule = super().load_from_checkpoint(checkpoint_path, *args, **kwargs)
+        datamodule._set_imagery_config(reference_imagery_options() | datamodule.imagery_config)
+        return datamodule
 
     def generation_config(self, split: str, imagery: str | None = None) -> GenerationConfig:
         return GenerationConfig(

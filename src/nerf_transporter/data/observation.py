@@ -38,12 +38,14 @@ IMAGERY_RUNTIME_FIELDS = ("device", "progress", "threads", "render_batch")
 # dataset, cache entry and cell was built under them before the setting existed), so that those
 # keep their identities
 IMAGERY_OPTIONS_BY_DEFAULT = {"colour_init": "grey"}
-# The NeRF imagery every dataset, cache entry and cell of the table was built with up to now (the
-# description of `ImageryConfig()` as it stood, pixel size apart): the reference that names
-# imagery changes (`SceneSpec.imagery_changes`). A dataset of other settings is named with a hash
-# of them, and a cell's protocol holds them (`imagery_changes`), so changing a default of
-# `ImageryConfig` makes new datasets and fits of their own, beside those of the reference. Never
-# edit it: the data and cells built so far are named relative to it.
+# The NeRF imagery every dataset, cache entry and cell was built with until the table-colour start
+# became the default (the description of `ImageryConfig()` as it stood, pixel size apart): the
+# reference that names imagery changes (`SceneSpec.imagery_changes`). A dataset of other settings
+# is named with a hash of them, and a cell's protocol holds them (`imagery_changes`), so a changed
+# default of `ImageryConfig` makes new datasets and fits of their own, beside those of the
+# reference, and a checkpoint is read back on the imagery it was trained on
+# (`RavensDataModule.load_from_checkpoint`). Never edit it: the data, cells and checkpoints built
+# so far are named relative to it.
 REFERENCE_IMAGERY: dict[str, Any] = {
     "field": "dense",
     "seed": 0,
@@ -73,6 +75,12 @@ REFERENCE_IMAGERY: dict[str, Any] = {
     "floor_smoothness_weight": 0.01,
     "final_learning_rate_factor": 0.1,
 }
+
+
+def reference_imagery_options() -> dict[str, Any]:
+    """The reference imagery as `ImageryConfig` fields: `REFERENCE_IMAGERY` with the settings added
+    since at the values it was built under (`IMAGERY_OPTIONS_BY_DEFAULT`)."""
+    return {**REFERENCE_IMAGERY, **IMAGERY_OPTIONS_BY_DEFAULT}
 
 
 @dataclass(frozen=True)

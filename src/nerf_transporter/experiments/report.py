@@ -43,6 +43,7 @@ import numpy as np
 
 from nerf_transporter.atomic import check_writable, write_text
 from nerf_transporter.console import HelpFormatter
+from nerf_transporter.data.observation import SceneSpec
 from nerf_transporter.drawing import bar_chart, line_chart
 from nerf_transporter.evaluation.metrics import cell, paired_comparison
 from nerf_transporter.evaluation.view_search import VIEW_SEARCH_FIGURES, view_search_text
@@ -289,6 +290,8 @@ def table_plot(records: list[dict]) -> np.ndarray:
 
 # table1.png: its height, and its width as margins plus one group of six bars a column, labels apart
 PLOT_HEIGHT, PLOT_MARGIN, PLOT_GROUP_WIDTH = 560, 80, 270
+# the overlay that takes the reference imagery back (`data/observation.py`, REFERENCE_IMAGERY)
+REFERENCE_IMAGERY_CONFIG = "configs/imagery/reference.yaml"
 # run-cell's budget options and the protocol keys they set, in the order a command lists them
 BUDGET_OPTIONS = (
     ("--steps", "steps"),
@@ -302,7 +305,9 @@ BUDGET_OPTIONS = (
 
 def run_cell_command(record: dict) -> str:
     """The `nerf-transporter run-cell` command that measures a cell again: its protocol and the
-    `--config` overlays it was run with."""
+    `--config` overlays it was run with; a NeRF-imagery cell of the reference imagery (no
+    `imagery_changes`) with the overlay that takes it back (`REFERENCE_IMAGERY_CONFIG`) where this
+    code's default imagery is another."""
     protocol = record["protocol"]
     words = ["nerf-transporter run-cell", f"--task {protocol['task']}"]
     trained = protocol.get("trained_setting", protocol["setting"])
@@ -314,7 +319,15 @@ def run_cell_command(record: dict) -> str:
     if protocol.get("imagery") == "oracle":
         words.append("--imagery oracle")
     words += [f"{option} {protocol[key]:g}" for option, key in BUDGET_OPTIONS]
-    words += [f"--config {overlay}" for overlay in record.get("overlays", ())]
+    overlays = list(record.get("overlays", ()))
+    if (
+        protocol.get("imagery") == "nerf"
+        and not protocol.get("imagery_changes")
+        and SceneSpec(protocol["task"]).imagery_changes()
+        and REFERENCE_IMAGERY_CONFIG not in overlays
+    ):
+        overlays.append(REFERENCE_IMAGERY_CONFIG)
+    words += [f"--config {overlay}" for overlay in overlays]
     return " ".join(words)
 
 

@@ -161,7 +161,10 @@ class HashGridField(RadianceField):
         hidden: int = 64,
         initial_thickness: float = 0.05,
         occupancy_voxels: tuple[int, int, int] = (80, 160, 48),
+        initial_colour: torch.Tensor | None = None,
     ) -> None:
+        """`initial_colour` (RGB in (0, 1)): the colour head starts at it everywhere (its last
+        layer's weights zero, its bias the colour's logits); default: the head's random start."""
         super().__init__()
         self.voxel_size = voxel_size
         self.table_size = 2**log2_table
@@ -179,6 +182,10 @@ class HashGridField(RadianceField):
         # start from the same uniform, nearly empty volume as the dense grid
         nn.init.zeros_(self.geometry_net[-1].weight)
         nn.init.zeros_(self.geometry_net[-1].bias)
+        if initial_colour is not None:
+            with torch.no_grad():
+                nn.init.zeros_(self.colour_net[-1].weight)
+                self.colour_net[-1].bias.copy_(colour_logits(initial_colour))
 
     def _encode(self, points: torch.Tensor) -> torch.Tensor:
         low = torch.as_tensor(geometry.BOUNDS[:, 0], dtype=points.dtype, device=points.device)

@@ -71,15 +71,16 @@ class ImageryConfig:
     occupancy_interval: int = 16
     occupancy_warmup: int = 32
     samples_per_segment: int = 4  # sample spacing = occupancy cell edge / samples_per_segment
-    sparsity_weight: float = 0.003  # times the opacity summed along a ray, averaged over rays
+    sparsity_weight: float = 0.0003  # times the opacity summed along a ray, averaged over rays
     binary_weight: float = 0.1  # times the entropy of the floor's share of each ray
     binary_ramp: float = 0.25  # fraction of the iterations over which binary_weight ramps up
     floor_smoothness_weight: float = 0.01  # times the mean squared colour step of the floor map
-    # the dense field's starting colour: "grey" (0.5), or "table": the captures' median colour,
-    # the floor map's start, so that density costs the colour loss nothing until the field's colour
-    # is learned (under grey, objects brighter than grey on a bright table, a white or pink disk,
-    # are driven out of the field before their colour is, and left painted on the floor)
-    colour_init: str = "grey"
+    # the dense field's starting colour: "table": the captures' median colour, the floor map's
+    # start, so that density costs the colour loss nothing until the field's colour is learned; or
+    # "grey" (0.5; the reference imagery's): under it, objects brighter than grey on a bright table,
+    # a white or pink disk, are driven out of the field before their colour is, and left painted on
+    # the floor (docs/imagery.md, "The default imagery")
+    colour_init: str = "table"
     final_learning_rate_factor: float = 0.1  # exponential decay of the learning rate to this factor
     pixel_size: float = geometry.PIXEL_SIZE  # of the rendered orthographic views
     render_batch: int = (
@@ -95,8 +96,6 @@ class ImageryConfig:
             raise ValueError(
                 f"unknown colour_init {self.colour_init!r}; expected one of {COLOUR_INITS}"
             )
-        if self.colour_init != "grey" and self.field != "dense":
-            raise ValueError(f"colour_init {self.colour_init!r} is for the dense field only")
         if len(self.stage_scales) != len(self.stage_starts):
             raise ValueError("stage_scales and stage_starts must have the same length")
         for name in ("iterations", "batch_rays", "image_downscale", "samples_per_segment"):
@@ -153,7 +152,8 @@ def resolve_device(name: str = "auto") -> torch.device:
 
 def make_field(config: ImageryConfig, table_colour: torch.Tensor | None = None) -> RadianceField:
     """The radiance field the config names, at its first coarse-to-fine stage; with
-    `colour_init="table"` the dense field starts at `table_colour` (RGB in (0, 1))."""
+    `colour_init="table"` it starts at `table_colour` (RGB in (0, 1))."""
+    initial_colour = table_colour if config.colour_init == "table" else None
     if config.field == "hash":
         voxels = config.voxels
         occupancy = tuple(v // config.occupancy_cell * 2 for v in voxels)
@@ -161,6 +161,7 @@ def make_field(config: ImageryConfig, table_colour: torch.Tensor | None = None) 
             config.voxel_size,
             initial_thickness=config.initial_thickness,
             occupancy_voxels=occupancy,
+            initial_colour=initial_colour,
         )
     return DenseGridField(
         config.voxels,
@@ -168,7 +169,7 @@ def make_field(config: ImageryConfig, table_colour: torch.Tensor | None = None) 
         colour_downscale=config.colour_downscale,
         initial_thickness=config.initial_thickness,
         initial_scale=config.stage_scales[0],
-        initial_colour=table_colour if config.colour_init == "table" else None,
+        initial_colour=initial_colour,
     )
 
 
