@@ -540,3 +540,41 @@ def test_a_tool_whose_reader_left_stops_quietly(tmp_path):
     stderr = process.stderr.read().decode()
     assert process.wait(timeout=120) == 1
     assert "Traceback" not in stderr and "BrokenPipeError" not in stderr
+
+
+QUICK_IMAGERY = {"voxel_size": 0.00625, "iterations": 300}  # configs/common/quick.yaml's
+
+
+@pytest.mark.parametrize(
+    ("recorded", "changes"),
+    # what a checkpoint of the quick config saved before the default changed: its config's own
+    [(QUICK_IMAGERY, {}), (None, {"colour_init": "table", "sparsity_weight": 0.0003})],
+    ids=["written-before-the-default-changed", "written-since"],
+)
+def test_lightning_test_of_a_checkpoint_is_on_the_imagery_it_was_trained_on(
+    tmp_path, monkeypatch, recorded, changes
+):
+    """As Lightning takes the model's hyper-parameters from `--ckpt_path`, the data's NeRF imagery
+    is the checkpoint's (`RavensDataModule.trained_imagery`), not the config's defaults."""
+    monkeypatch.chdir(tmp_path)
+    # the data built, not tested: Trainer.test's arguments kept (the `test` sub-command's)
+    monkeypatch.setattr(pl.Trainer, "test", functools.wraps(pl.Trainer.test)(lambda *a, **k: None))
+    config = Path(__file__).resolve().parents[1] / "configs" / "quick" / "block_insertion.yaml"
+    built = build_cli(["--config", str(config)], run=False)
+    data = dict(built.datamodule.hparams)
+    if recorded is not None:
+        data["imagery_config"] = recorded
+    checkpoint = tmp_path / "policy.ckpt"
+    torch.save(
+        {
+            "pytorch-lightning_version": pl.__version__,
+            "hyper_parameters": {k: v for k, v in built.model.hparams.items() if k[0] != "_"}
+            | {"_class_path": built.model.hparams["_class_path"]},
+            "datamodule_hyper_parameters": {k: v for k, v in data.items() if k != "_instantiator"},
+            "state_dict": built.model.state_dict(),
+        },
+        checkpoint,
+    )
+    cli = build_cli(["test", "--config", str(config), "--ckpt_path", str(checkpoint)])
+    scene = cli.datamodule.generation_config("train").scene
+    assert scene.imagery_changes() == changes | QUICK_IMAGERY

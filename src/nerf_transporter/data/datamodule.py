@@ -409,14 +409,20 @@ class RavensDataModule(pl.LightningDataModule):
         changes = self.generation_config("train").scene.imagery_changes()
         self.hparams["imagery_config"] = {**imagery_config, **changes}
 
+    @staticmethod
+    def trained_imagery(saved: dict[str, Any] | None) -> dict[str, Any]:
+        """The NeRF imagery settings a checkpoint was trained on, from the `imagery_config` its
+        datamodule hyper-parameters hold, whatever this code's defaults: the reference imagery
+        (`reference_imagery_options`) with the settings they name (a checkpoint written before
+        checkpoints named them names only those its config set, and was trained on the
+        reference)."""
+        return reference_imagery_options() | dict(saved or {})
+
     @classmethod
     def load_from_checkpoint(cls, checkpoint_path: Any, *args: Any, **kwargs: Any) -> Any:
-        """Lightning's, with the NeRF imagery the checkpoint was trained on whatever this code's
-        defaults: the reference imagery (`reference_imagery_options`) with the settings the
-        checkpoint names (one written before checkpoints named them names only those its config
-        set, and was trained on the reference)."""
+        """Lightning's, on the NeRF imagery the checkpoint was trained on (`trained_imagery`)."""
         datamodule = super().load_from_checkpoint(checkpoint_path, *args, **kwargs)
-        datamodule._set_imagery_config(reference_imagery_options() | datamodule.imagery_config)
+        datamodule._set_imagery_config(cls.trained_imagery(datamodule.imagery_config))
         return datamodule
 
     def generation_config(self, split: str, imagery: str | None = None) -> GenerationConfig:

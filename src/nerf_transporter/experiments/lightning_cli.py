@@ -203,12 +203,32 @@ def build_cli(
             init_args = getattr(model, "init_args", None) or {}
             chosen = {key: init_args[key] for key in TEST_TIME_OPTIONS if key in init_args}
             super()._parse_ckpt_path()
+            if ckpt_path and Path(ckpt_path).is_file():
+                self._use_trained_imagery(subcommand, Path(ckpt_path))
             # a test-time option (mira's view choice) is the config's, not the checkpoint's
             model = self.config[subcommand].get("model") if subcommand else None
             for key, value in chosen.items():
                 model.init_args[key] = value
                 if getattr(model, "dict_kwargs", None):
                     model.dict_kwargs.pop(key, None)
+
+        def _use_trained_imagery(self, subcommand: str, ckpt_path: Path) -> None:
+            """The data's NeRF imagery is the one the checkpoint was trained on
+            (`RavensDataModule.trained_imagery`), as Lightning takes the model's hyper-parameters
+            from it: a test, or a resumed fit, of a policy is on the imagery it learned."""
+            import torch
+
+            from nerf_transporter.data.datamodule import RavensDataModule
+
+            checkpoint = torch.load(ckpt_path, map_location="cpu", weights_only=True, mmap=True)
+            saved = checkpoint.get("datamodule_hyper_parameters", {})
+            data = self.config[subcommand].get("data")
+            ravens = f"{RavensDataModule.__module__}.{RavensDataModule.__qualname__}"
+            if saved.get("_class_path") != ravens or getattr(data, "class_path", None) != ravens:
+                return
+            data.init_args.imagery_config = RavensDataModule.trained_imagery(
+                saved.get("imagery_config")
+            )
 
         def instantiate_classes(self) -> None:
             """A model or data argument its class refuses (a ValueError of its `__init__`, which
