@@ -194,7 +194,7 @@ def test_real_nerf_imagery_episode(tmp_path):
         pixel_size=PIXEL,
         nerf_views=6,
         nerf_image_size=(60, 80),
-        imagery_options={"iterations": 30, "batch_rays": 512},
+        imagery_options={"iterations": 100, "batch_rays": 512},
     )
     dataset = gen.generate_dataset(config, 1, tmp_path, progress=False)
     (ref,) = ep.list_episodes(dataset)
@@ -203,20 +203,22 @@ def test_real_nerf_imagery_episode(tmp_path):
     assert imagery["colour"].shape == (49, *g.image_shape(PIXEL), 3)
     assert set(imagery["truth_view_ids"].tolist()) <= {24, int(imagery["place_view"])}
     assert episode.arrays["nerf_views"]["rgb"].shape == (6, 60, 80, 3)
-    # Measured with this config (seed 0, one thread): PSNR 25.37 dB, height error 1.71 mm (1.23 mm
-    # on objects). On the same views the mean-colour image scores 24.70 dB (uniform grey 12.41),
-    # a flat table at z = 0 is 75.5 mm off (146.5 mm on objects). Thresholds: PSNR above the
-    # mean-colour image's by half the measured lead (0.3 of 0.67 dB), heights within 5 mm
-    # (about three times the measured errors, a fifteenth of the flat table's).
+    # Measured with this config (seed 0, one thread; the default imagery, whose field starts at
+    # the table's colour, so that 30 iterations leave it at the mean colour's 24.7 dB): PSNR
+    # 25.54 dB, height error 1.25 mm (1.13 mm on objects). On the same views the mean-colour image
+    # scores 24.70 dB (uniform grey 12.41), a flat table at z = 0 is 75.5 mm off (146.5 mm on
+    # objects). Thresholds: PSNR above the mean-colour image's by half the measured lead (0.4 of
+    # 0.84 dB), heights within 5 mm (about four times the measured errors, a fifteenth of the flat
+    # table's).
     quality = episode.meta["imagery"]["quality"]
     truth_colour = imagery["truth_colour"]
     mean_colour = np.broadcast_to(
         truth_colour.reshape(-1, 3).mean(0).round().astype(np.uint8), truth_colour.shape
     )
-    assert quality["psnr_db"] > psnr(mean_colour, truth_colour) + 0.3, quality
+    assert quality["psnr_db"] > psnr(mean_colour, truth_colour) + 0.4, quality
     assert quality["height_mae_mm"] < 5.0 and quality["object_height_mae_mm"] < 5.0, quality
     assert (
-        json.loads((dataset / "dataset.json").read_text())["imagery"]["config"]["iterations"] == 30
+        json.loads((dataset / "dataset.json").read_text())["imagery"]["config"]["iterations"] == 100
     )
 
 
