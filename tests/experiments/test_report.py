@@ -7,6 +7,7 @@ import cv2
 import pytest
 
 from nerf_transporter.cli import main as cli_main
+from nerf_transporter.data.observation import SceneSpec
 from nerf_transporter.evaluation.metrics import wilson_interval
 from nerf_transporter.experiments.cells import column_folder, cross_protocol
 from nerf_transporter.experiments.report import (
@@ -151,16 +152,21 @@ def write_cell(
     trained=None,
     strict=None,
     won=None,
+    reference_imagery=False,
 ):
     """A cell as run-cell writes it (the fields the report reads, its protocol and overlays),
     trained in `trained` (default: the setting it is tested in; another: a cross-setting cell
     naming its fit), with `strict` strict 6-DoF successes where given, and, where `won` is given,
-    its episodes: test seeds 1, 3, 5, ..., the `won`-th of them (counted from 0) succeeded."""
+    its episodes: test seeds 1, 3, 5, ..., the `won`-th of them (counted from 0) succeeded. A
+    NeRF-imagery cell read the default imagery, or the reference imagery where
+    `reference_imagery` (a cell fitted before the default changed: no `imagery_changes`)."""
     trained = trained or setting
     column = column_folder(task, setting, trained)
     low, high = wilson_interval(successes, episodes)
     method = row.removesuffix("-oracle")
     protocol = {"task": task, "setting": trained, "method": method, "imagery": imagery}
+    if imagery == "nerf" and not reference_imagery:
+        protocol["imagery_changes"] = SceneSpec(task, imagery="nerf").imagery_changes()
     protocol |= {"steps": 2000, "batch_size": 1, "lr": 1e-4, "validation_every": 500}
     protocol |= {"validation_episodes": 10, "test_episodes": episodes}
     checkpoint = {"step": 2000, "path": "logs/cells/run/version_0/checkpoints/step002000.ckpt"}
@@ -212,7 +218,9 @@ def _docs(tmp_path):
 def test_cells_of_a_results_folder_fill_their_rows_the_plot_and_the_readme(tmp_path, capsys):
     results = tmp_path / "results"
     curve = [(500, 0.2), (1000, 0.5), (1500, 0.7), (2000, 0.6)]
-    write_cell(results, "mira", "block-insertion", "normal", 81, 100, "nerf", curve)
+    write_cell(
+        results, "mira", "block-insertion", "normal", 81, 100, "nerf", curve, reference_imagery=True
+    )
     write_cell(results, "mira-oracle", "block-insertion", "normal", 90, 100, imagery="oracle")
     width64 = ["configs/gpu/width64.yaml"]
     h100 = {"cpu": "Intel(R) Xeon(R) Processor", "gpu": "NVIDIA H100 80GB HBM3"}
@@ -231,7 +239,8 @@ def test_cells_of_a_results_folder_fill_their_rows_the_plot_and_the_readme(tmp_p
     argv = [str(results), "--readme", str(readme), "--results-doc", str(results_doc)]
     assert report_main(argv + ["--plot", str(plot)]) == 0
     rows = capsys.readouterr().out.splitlines()[2:]
-    assert rows[0].startswith("| mira (ours) | 81% (100, 72-87) / - |  |")
+    # mira's NeRF cell names no imagery changes: the reference imagery, not the default, marked
+    assert rows[0].startswith("| mira (ours) | 81% (100, 72-87) / - † |  |")
     assert rows[2].startswith("| mira, oracle imagery | 90% (100, 83-94) / - |  |")
     # Form2Fit, place-red-in-green trained and tested Challenging: the optional ninth column
     assert rows[7].endswith("|  | 30% (100, 22-40) / - |")
@@ -442,7 +451,7 @@ def test_a_test_record_under_a_folder_of_cells_is_never_taken_for_a_cell(tmp_pat
     _write(results, "hanging-disks", "form2fit", "hanging-disks", "normal", 2, 2, "2099-01-01")
     assert report_main([str(results)]) == 0
     out, err = capsys.readouterr()
-    assert "| mira (ours) | 77% (100, 68-84) / - |" in out
+    assert "| mira (ours) | 77% (100, 68-84) / - † |" in out
     assert "| Form2Fit |  |  |  |" in out  # its stray test record is no cell either
     assert "left out 2 test record(s)" in err and str(stray) in err
     misplaced = results / "block-insertion" / "form2fit.json"
@@ -461,6 +470,7 @@ def test_an_archived_world_renders_under_its_own_heading_never_in_the_table(tmp_
     assert report_main(argv) == 0
     current, archived = capsys.readouterr().out.split(f"\nArchived world {old} ({archive}: 1 cells")
     assert "| mira (ours) |  |" in current and "9% (100, 5-16)" in current
+    # an archived world's NeRF cell is not marked: its imagery is never compared with this code's
     assert "| mira (ours) | 77% (100, 68-84) / - |" in archived and "9% (100" not in archived
     measured = (
         f"1 of 48 cells measured in `results/`, in this checkout's world `{world_fingerprint()}`"
@@ -492,7 +502,7 @@ def test_an_earlier_recipe_renders_under_its_own_heading_never_in_the_table(tmp_
     assert report_main(argv) == 0
     current, earlier = capsys.readouterr().out.split("\nEarlier recipe 2026-12-03 (")
     assert "| mira (ours) |  |" in current and "9% (100, 5-16)" in current
-    assert "| mira (ours) | 77% (100, 68-84) / - |" in earlier and "9% (100" not in earlier
+    assert "| mira (ours) | 77% (100, 68-84) / - † |" in earlier and "9% (100" not in earlier
     assert "77% (100, 68-84)" not in readme.read_text() + results_doc.read_text()
     page = results_doc.read_text()
     assert "Earlier recipe `2026-12-03`: 1 cells of this world, kept in " in page
@@ -632,3 +642,28 @@ def test_report_names_a_row_or_column_that_mixes_recipes(tmp_path, capsys):
         "column block-insertion: colour_augment: false in mira (ours); true in Transporter-SE(2)"
     ) in err
     assert "GT-State MLP" not in err and "row Transporter-SE(2)" not in err
+
+
+def test_a_nerf_cell_on_other_imagery_than_the_default_is_marked_not_a_mixed_recipe(
+    tmp_path, capsys
+):
+    """A mira row re-measured on the default NeRF imagery one cell at a time: the cell still on
+    the reference imagery is marked in the table, with the mark's legend in both results blocks,
+    and the row is one recipe."""
+    assert SceneSpec("hanging-disks").imagery_changes(), "the default is not the reference"
+    results = tmp_path / "results"
+    write_cell(
+        results, "mira", "block-insertion", "normal", 50, 100, "nerf", reference_imagery=True
+    )
+    write_cell(results, "mira", "hanging-disks", "normal", 60, 100, "nerf")
+    readme, results_doc = _docs(tmp_path)
+    code = report_main([str(results), "--readme", str(readme), "--results-doc", str(results_doc)])
+    assert code == 0
+    out, err = capsys.readouterr()
+    row = next(line for line in out.splitlines() if line.startswith("| mira (ours) |"))
+    assert "| 50% (100, 40-60) / - † |" in row
+    assert "| 60% (100, 50-69) / - |" in row
+    assert "mixes recipes" not in err
+    for page in (readme, results_doc):
+        legend = "†: a NeRF-imagery cell measured on imagery other than this code's default"
+        assert legend in page.read_text()

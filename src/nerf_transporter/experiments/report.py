@@ -9,15 +9,17 @@ oracle imagery is a row of its own) and one column per task, setting tested in a
 in: the eight of the table (each task trained Normal, tested Normal and Challenging), then any other
 where records exist (place-red-in-green trained and tested Challenging, the optional ninth). A cell
 reads "success / strict 6-DoF success", each "rate% (n, CI)" with the 95% Wilson interval in
-percent ("-" for a record without the strict check), and is empty where no run exists. Where
+percent ("-" for a record without the strict check), marked † where the cell read NeRF imagery
+other than this code's default (`on_other_imagery`), and is empty where no run exists. Where
 several records exist for one cell, a cell outranks a test record, then the newest wins. Below each
 of our rows, the paper's Table 1 value of that method under the column its table labels it by
 (`experiments/paper.py`; `PAPER_NOTE` on reading its caption). The cells of an earlier world,
 kept under `<root>/archive/world-<fingerprint>/`, follow in a table of their own under the heading
 "Archived world <fingerprint>", never in this world's table; so do this world's cells of an
 earlier training recipe, kept under `<root>/archive/recipe-<name>/`, under "Earlier recipe <name>".
-A table that mixes recipes (a row whose cells differ beyond their columns, or a column whose image
-rows differ in colour augmentation: `mixed_recipes`) is printed still, and named on stderr.
+A table that mixes recipes (a row whose cells differ beyond their columns and their NeRF imagery,
+or a column whose image rows differ in colour augmentation: `mixed_recipes`) is printed still, and
+named on stderr.
 `--plot` draws the table as bars with their intervals and the paper's values as markers;
 `--validation-plots DIR` draws each column's validation success against training steps (the budget
 study, `docs/budget.md`) and `--validation-tables` prints them. `--readme` rewrites the README's
@@ -120,15 +122,32 @@ def paper_value(method: str, column: Column) -> int | None:
     return PAPER_SUCCESS.get(method, {}).get((task, setting)) if trained == "normal" else None
 
 
+# the mark of a NeRF-imagery cell measured on imagery other than this code's default
+OTHER_IMAGERY_MARK = "†"
+
+
+def on_other_imagery(record: dict) -> bool:
+    """Whether a cell of this world read NeRF imagery other than this code's default: its
+    protocol's `imagery_changes` (none: the reference imagery) are not those of the default
+    (`SceneSpec.imagery_changes`). False for other imagery, for a record without a protocol and for
+    an archived world's cell (never compared with this code's)."""
+    protocol = record.get("protocol") or {}
+    if protocol.get("imagery") != "nerf" or record.get("world") != world_fingerprint():
+        return False
+    return protocol.get("imagery_changes", {}) != SceneSpec(protocol["task"]).imagery_changes()
+
+
 def table_cell(record: dict) -> str:
     """A cell of the table: 'success / strict 6-DoF success', each as `cell` writes it ('-' for a
-    record without the strict check)."""
+    record without the strict check), marked `OTHER_IMAGERY_MARK` where the cell read NeRF
+    imagery other than the default (`on_other_imagery`)."""
+    mark = f" {OTHER_IMAGERY_MARK}" if on_other_imagery(record) else ""
     strict = record.get("strict_successes")
     if strict is None:
-        return f"{cell(record)} / -"
+        return f"{cell(record)} / -{mark}"
     figures = {"episodes": record["episodes"], "successes": strict}
     figures |= {"ci_low": record["strict_ci_low"], "ci_high": record["strict_ci_high"]}
-    return f"{cell(record)} / {cell(figures)}"
+    return f"{cell(record)} / {cell(figures)}{mark}"
 
 
 def _rank(value: str, known: tuple[str, ...]) -> tuple[int, str]:
@@ -155,8 +174,17 @@ def newest_records(records: list[dict]) -> dict[tuple[str, str, str, str], dict]
     return newest
 
 
-# protocol keys that belong to a cell's column, not to its row's recipe
-COLUMN_KEYS = ("task", "setting", "trained_setting", "fit_protocol_id", "colour_augment")
+# protocol keys that belong to a cell's column, or to the cell alone, not to its row's recipe: a
+# NeRF cell's imagery is its own, marked in its cell where it is not the default (`table_cell`),
+# since a changed default imagery re-measures a row's cells one fit at a time
+COLUMN_KEYS = (
+    "task",
+    "setting",
+    "trained_setting",
+    "fit_protocol_id",
+    "colour_augment",
+    "imagery_changes",
+)
 STATE_ROWS = ("gt_state_mlp",)  # rows that read no image: colour augmentation is no knob of theirs
 
 
@@ -178,8 +206,8 @@ def _differences(cells: dict[str, dict]) -> list[str]:
 
 def mixed_recipes(records: list[dict]) -> list[str]:
     """Where a table mixes recipes, one line each: a row whose cells differ in a setting that is
-    not their column's (budget, learning rate, architecture, training settings, view choice,
-    imagery), or a column whose image rows differ in colour augmentation. [] for a table of one
+    not their column's (budget, learning rate, architecture, training settings, view choice;
+    not the NeRF imagery, marked cell by cell), or a column whose image rows differ in colour augmentation. [] for a table of one
     recipe (an earlier recipe's cells belong under `<results>/archive/recipe-<name>/`)."""
     rows: dict[str, dict[str, dict]] = {}
     columns: dict[Column, dict[str, dict]] = {}
@@ -516,14 +544,25 @@ def _measured_line(records: list[dict]) -> str:
     return f"Full protocol (`nerf-transporter run-cell`): {measured}{beyond}"
 
 
-def _legend(citation: str) -> str:
-    """How to read the table's columns, cells and paper rows; `citation` links the paper."""
+def _legend(citation: str, records: list[dict]) -> str:
+    """How to read the table's columns, cells (and the mark of a cell on other NeRF imagery, where
+    one is) and paper rows; `citation` links the paper."""
+    marked = any(on_other_imagery(record) for record in newest_records(records).values())
+    other_imagery = (
+        f"{OTHER_IMAGERY_MARK}: a NeRF-imagery cell measured on imagery other than this code's "
+        "default; a cell fitted before the default changed read the reference imagery "
+        '(`configs/imagery/reference.yaml`; docs/imagery.md, "The default imagery"), and each '
+        "cell's command names the overlay that takes its imagery back. "
+        if marked
+        else ""
+    )
     return (
         "Columns: each task trained on Normal demonstrations and tested on Normal and on "
         "Challenging test seeds (the same checkpoint, chosen on Normal validation seeds); a "
         "column trained and tested Challenging (`--setting challenging`) follows where its cells "
         "exist. Cells: success (the anchor's reward) / strict success (the 6-DoF check; - where "
-        'the cell lacks it), each rate% (test episodes that ran, 95% Wilson interval). "paper" '
+        "the cell lacks it), each rate% (test episodes that ran, 95% Wilson interval). "
+        f'{other_imagery}"paper" '
         f"rows: Table 1 of the write-up this project started from (see [Citation]({citation}); "
         "success %, 10 demonstrations, its number of test episodes not stated; "
         "`experiments/paper.py`)."
@@ -534,7 +573,7 @@ def readme_block(records: list[dict]) -> str:
     """The README's results block (without its markers): this world's table with its world, how
     many cells are measured, the plot, and where the rest lies (`results_doc_block`)."""
     lines = [_measured_line(records), "", markdown(*results_table(records)).rstrip("\n")]
-    lines += ["", _legend("#citation")]
+    lines += ["", _legend("#citation", records)]
     if measured_cells(records):
         lines += ["", "![results table as bars](results/table1.png)"]
     lines += [
@@ -550,7 +589,11 @@ def results_doc_block(records: list[dict], archives: Sequence[Archive] = ()) -> 
     many cells are measured, how to read it, where they were fitted, the plot, the paired
     comparisons and the run-cell commands; then where each archived world's cells lie."""
     lines = [_measured_line(records), "", markdown(*results_table(records)).rstrip("\n")]
-    lines += ["", f"{_legend(README_LINK + '#citation')} {PAPER_NOTE}", *_machine_lines(records)]
+    lines += [
+        "",
+        f"{_legend(README_LINK + '#citation', records)} {PAPER_NOTE}",
+        *_machine_lines(records),
+    ]
     if measured_cells(records):
         lines += ["", "![results table as bars](../results/table1.png)"]
     header, rows = paired_comparisons(records)
