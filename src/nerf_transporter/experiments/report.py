@@ -207,8 +207,9 @@ def _differences(cells: dict[str, dict]) -> list[str]:
 def mixed_recipes(records: list[dict]) -> list[str]:
     """Where a table mixes recipes, one line each: a row whose cells differ in a setting that is
     not their column's (budget, learning rate, architecture, training settings, view choice;
-    not the NeRF imagery, marked cell by cell), or a column whose image rows differ in colour augmentation. [] for a table of one
-    recipe (an earlier recipe's cells belong under `<results>/archive/recipe-<name>/`)."""
+    not the NeRF imagery, marked cell by cell), or a column whose image rows differ in colour
+    augmentation. [] for a table of one recipe (an earlier recipe's cells belong under
+    `<results>/archive/recipe-<name>/`)."""
     rows: dict[str, dict[str, dict]] = {}
     columns: dict[Column, dict[str, dict]] = {}
     for (row, *column), record in newest_records(records).items():
