@@ -336,7 +336,7 @@ def run_cell_command(record: dict) -> str:
     """The `nerf-transporter run-cell` command that measures a cell again: its protocol and the
     `--config` overlays it was run with; a NeRF-imagery cell of the reference imagery (no
     `imagery_changes`) with the overlay that takes it back (`REFERENCE_IMAGERY_CONFIG`) where this
-    code's default imagery is another."""
+    code's default imagery is another (`on_other_imagery`)."""
     protocol = record["protocol"]
     words = ["nerf-transporter run-cell", f"--task {protocol['task']}"]
     trained = protocol.get("trained_setting", protocol["setting"])
@@ -350,9 +350,8 @@ def run_cell_command(record: dict) -> str:
     words += [f"{option} {protocol[key]:g}" for option, key in BUDGET_OPTIONS]
     overlays = list(record.get("overlays", ()))
     if (
-        protocol.get("imagery") == "nerf"
+        on_other_imagery(record)
         and not protocol.get("imagery_changes")
-        and SceneSpec(protocol["task"]).imagery_changes()
         and REFERENCE_IMAGERY_CONFIG not in overlays
     ):
         overlays.append(REFERENCE_IMAGERY_CONFIG)
