@@ -614,8 +614,10 @@ def test_the_results_page_pairs_mira_with_each_row_on_their_common_seeds(tmp_pat
 
 
 def test_report_names_a_row_or_column_that_mixes_recipes(tmp_path, capsys):
-    """A row refitted on a new recipe beside a cell of the old one, or one image row of a column
-    with colour augmentation and another without: named on stderr, the table printed still."""
+    """A row refitted on a new recipe beside a cell of the old one, one image row of a column
+    with colour augmentation and another without, or one row of a column at another budget than
+    the others: named on stderr, the table printed still. A budget the whole column shares is the
+    column's, as the paper's budgets are its tasks'."""
     results = tmp_path / "results"
     for task in ("block-insertion", "place-red-in-green"):
         for row in ("mira", "transporter_se2", "gt_state_mlp"):
@@ -628,6 +630,11 @@ def test_report_names_a_row_or_column_that_mixes_recipes(tmp_path, capsys):
         cell["protocol"] |= protocol
         path.write_text(json.dumps(cell))
 
+    for row in ("mira", "transporter_se2", "gt_state_mlp"):
+        edit(results / "place-red-in-green" / f"{row}.json", steps=9000)
+    assert report_main([str(results)]) == 0
+    assert "mixes recipes" not in capsys.readouterr().err
+    edit(results / "place-red-in-green" / "gt_state_mlp.json", steps=2000)
     edit(results / "place-red-in-green" / "mira.json", view_choice="view_softmax")
     edit(results / "block-insertion" / "transporter_se2.json", colour_augment=True)
     edit(results / "block-insertion" / "gt_state_mlp.json", colour_augment=True)  # reads no image
@@ -641,7 +648,12 @@ def test_report_names_a_row_or_column_that_mixes_recipes(tmp_path, capsys):
     assert (
         "column block-insertion: colour_augment: false in mira (ours); true in Transporter-SE(2)"
     ) in err
-    assert "GT-State MLP" not in err and "row Transporter-SE(2)" not in err
+    assert (
+        "column place-red-in-green: steps: 2000 in GT-State MLP; 9000 in mira (ours), "
+        "Transporter-SE(2)\n"
+    ) in err
+    assert "GT-State MLP: colour" not in err and "row Transporter-SE(2)" not in err
+    assert "row GT-State MLP" not in err
 
 
 def test_a_nerf_cell_on_other_imagery_than_the_default_is_marked_not_a_mixed_recipe(

@@ -18,8 +18,8 @@ kept under `<root>/archive/world-<fingerprint>/`, follow in a table of their own
 "Archived world <fingerprint>", never in this world's table; so do this world's cells of an
 earlier training recipe, kept under `<root>/archive/recipe-<name>/`, under "Earlier recipe <name>".
 A table that mixes recipes (a row whose cells differ beyond their columns and their NeRF imagery,
-or a column whose image rows differ in colour augmentation: `mixed_recipes`) is printed still, and
-named on stderr.
+or a column whose rows differ in budget or whose image rows differ in colour augmentation:
+`mixed_recipes`) is printed still, and named on stderr.
 `--plot` draws the table as bars with their intervals and the paper's values as markers;
 `--validation-plots DIR` draws each column's validation success against training steps (the budget
 study, `docs/budget.md`) and `--validation-tables` prints them. `--readme` rewrites the README's
@@ -176,7 +176,8 @@ def newest_records(records: list[dict]) -> dict[tuple[str, str, str, str], dict]
 
 # protocol keys that belong to a cell's column, or to the cell alone, not to its row's recipe: a
 # NeRF cell's imagery is its own, marked in its cell where it is not the default (`table_cell`),
-# since a changed default imagery re-measures a row's cells one fit at a time
+# since a changed default imagery re-measures a row's cells one fit at a time; the budget (steps)
+# is the column's, as the paper's budgets are its tasks' (9000 to 40000 steps)
 COLUMN_KEYS = (
     "task",
     "setting",
@@ -184,6 +185,7 @@ COLUMN_KEYS = (
     "fit_protocol_id",
     "colour_augment",
     "imagery_changes",
+    "steps",
 )
 STATE_ROWS = ("gt_state_mlp",)  # rows that read no image: colour augmentation is no knob of theirs
 
@@ -206,12 +208,13 @@ def _differences(cells: dict[str, dict]) -> list[str]:
 
 def mixed_recipes(records: list[dict]) -> list[str]:
     """Where a table mixes recipes, one line each: a row whose cells differ in a setting that is
-    not their column's (budget, learning rate, architecture, training settings, view choice;
-    not the NeRF imagery, marked cell by cell), or a column whose image rows differ in colour
-    augmentation. [] for a table of one recipe (an earlier recipe's cells belong under
-    `<results>/archive/recipe-<name>/`)."""
+    not their column's (learning rate, architecture, training settings, view choice; not the NeRF
+    imagery, marked cell by cell), or a column whose rows differ in budget (steps, every row) or
+    whose image rows differ in colour augmentation. [] for a table of one recipe (an earlier
+    recipe's cells belong under `<results>/archive/recipe-<name>/`)."""
     rows: dict[str, dict[str, dict]] = {}
-    columns: dict[Column, dict[str, dict]] = {}
+    augments: dict[Column, dict[str, dict]] = {}
+    budgets: dict[Column, dict[str, dict]] = {}
     for (row, *column), record in newest_records(records).items():
         protocol = record.get("protocol")
         if protocol is None:
@@ -220,9 +223,11 @@ def mixed_recipes(records: list[dict]) -> list[str]:
         rows.setdefault(row, {})[name] = {
             key: value for key, value in protocol.items() if key not in COLUMN_KEYS
         }
+        method = METHODS.get(row, row)
+        budgets.setdefault(tuple(column), {})[method] = {"steps": protocol.get("steps")}
         if row not in STATE_ROWS:
             augment = {"colour_augment": protocol.get("colour_augment", False)}
-            columns.setdefault(tuple(column), {})[METHODS.get(row, row)] = augment
+            augments.setdefault(tuple(column), {})[method] = augment
     lines = [
         f"row {METHODS.get(row, row)}: {text}"
         for row, cells in rows.items()
@@ -230,7 +235,8 @@ def mixed_recipes(records: list[dict]) -> list[str]:
     ]
     lines += [
         f"column {column_name(*column)}: {text}"
-        for column, cells in columns.items()
+        for by_column in (budgets, augments)
+        for column, cells in by_column.items()
         for text in _differences(cells)
     ]
     return lines
