@@ -279,6 +279,7 @@ MIRA_RECIPE = {
     "model.init_args.view_choice": "view_softmax",
     "model.init_args.width": 64,
     "model.init_args.lr": 1e-4,
+    "model.init_args.square_attention": True,
 }
 RECIPE_KNOBS = {
     "se2_gaussian.yaml": (
@@ -289,6 +290,7 @@ RECIPE_KNOBS = {
     "no_colour_augment.yaml": ("data.init_args.colour_augment",),
     "view_softmax.yaml": ("model.init_args.view_choice",),
     "width64_lr1e-4.yaml": ("model.init_args.width",),  # the task configs' lr is MIRA's 1e-4
+    "square_attention.yaml": ("model.init_args.square_attention",),
 }
 
 

@@ -125,7 +125,8 @@ def test_failed_episodes_are_classed_by_pick_aim_and_settling(scene, tmp_path, c
     """One episode a seed (a cell repeats none); each fixture is tilted by 20-30 deg, as SEED's."""
     env, oracle = scene
     oracles = {seed: _oracle(seed) for seed in (5, 7, 9, 13)}
-    table_pick = (np.array([0.3, -0.45, 0.0]), np.array([0.0, 0.0, 0.0, 1.0]))
+    corner = geometry.BOUNDS[:2, 1] - geometry.PIXEL_SIZE  # the image's last row and column
+    table_pick = (np.array([*corner, 0.0]), np.array([0.0, 0.0, 0.0, 1.0]))
     episodes = [
         _episode(oracle, True),
         _episode(oracles[5], False, NOT_ACHIEVED, 5) | {"pose_error": {"position_error": 0.2}},
@@ -152,7 +153,7 @@ def test_failed_episodes_are_classed_by_pick_aim_and_settling(scene, tmp_path, c
     assert rows[0].startswith(
         "| block-insertion | mira (ours) | 6 | 1 (0) | 1 | 1: 1 / 0 / 0 | 1 (1) |"
     )
-    assert "1 unreachable: pre-place pose" in rows[0]
+    assert "| 1 unreachable: pre-place pose | 1 | 1 |" in rows[0]  # the pick on the corner
     assert (
         rows[1] == "| block-insertion | mira (ours) | 0/0 | 0/0 | 1/5 | 0/0 |"
     )  # erred: not counted

@@ -852,6 +852,19 @@ def test_colour_augmentation_is_a_protocol_of_its_own_and_its_absence_changes_no
     assert cell_module.protocol_id(recoloured) != cell_module.protocol_id(protocol)
 
 
+def test_square_attention_is_a_protocol_of_its_own_and_its_absence_changes_no_id():
+    """MIRA's square attention input (configs/recipe/square_attention.yaml): every committed cell
+    was fitted without it, so off it names nothing, on it is another protocol."""
+    files = cell_module.config_files(REPO / "configs", "hanging-disks", "normal", "transporter_se2")
+    plain = real_config(files)
+    squared = real_config([*files, REPO / "configs" / "recipe" / "square_attention.yaml"])
+    protocol = cell_module.cell_protocol(plain, "transporter_se2", "heightmap")
+    assert "square_attention" not in json.dumps(protocol)
+    assert cell_module.cell_protocol(squared, "transporter_se2", "heightmap") == protocol | {
+        "square_attention": True
+    }
+
+
 def test_nerf_imagery_settings_other_than_the_reference_are_a_protocol_of_their_own(
     fakes, monkeypatch
 ):

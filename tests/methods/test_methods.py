@@ -146,6 +146,21 @@ def test_a_test_without_a_callback_to_play_the_seeds_is_refused():
         trainer.test(make_method("mira"), dataloaders=seed_loader("test", 1))
 
 
+@pytest.mark.parametrize("name", ["mira", "transporter_se2", "transporter_se3", "form2fit"])
+def test_square_attention_is_rebuilt_from_a_checkpoint_and_acts_the_same(name):
+    """A fit with configs/recipe/square_attention.yaml is tested padded, as it was trained."""
+    torch.manual_seed(0)
+    trained = make_method(name, square_attention=True)
+    rebuilt = METHODS[name](**trained.hparams)
+    rebuilt.load_state_dict(trained.state_dict())
+    attentions = [m for m in rebuilt.modules() if type(m).__name__ == "Attention"]
+    assert attentions and all(m.square_fill is not None for m in attentions)
+    observation = synthetic_observation(trained.input_kind)
+    first, again = trained.eval().act(observation), rebuilt.eval().act(observation)
+    for key in ("pick", "place"):
+        np.testing.assert_allclose(first[key][0], again[key][0])
+
+
 def test_hyperparameters_are_plain_values():
     for name in METHODS:
         hparams = dict(make_method(name).hparams)

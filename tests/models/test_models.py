@@ -4,7 +4,9 @@ import pytest
 import torch
 
 from nerf_transporter import geometry as g
+from nerf_transporter.data.preprocess import empty_pixel_input
 from nerf_transporter.models import (
+    Attention,
     PoseRegression,
     ResNet43_8s,
     Transport,
@@ -25,6 +27,32 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 def test_resnet_output_at_input_resolution(shape):
     net = ResNet43_8s(6, 3, width=4)
     assert net(torch.randn(shape)).shape == (shape[0], 3, *shape[2:])
+
+
+def test_square_attention_sees_an_images_empty_border_as_its_padding():
+    """MIRA's square input: a 32 x 16 image padded to 32 x 32 with the augmentation's empty
+    pixel. An image whose outer columns are empty pixels (an augmented one, shifted) gets, on its
+    inner columns, the logits of its inner part alone: the border and the padding are one thing,
+    and the padding is centred and cropped back."""
+    torch.manual_seed(0)
+    fill = empty_pixel_input()
+    attention = Attention(6, width=4, square_fill=fill).eval()
+    inner = torch.randn(1, 6, 32, 8)
+    shifted = fill[None, :, None, None].repeat(1, 1, 32, 16)
+    shifted[..., 4:12] = inner
+    with torch.no_grad():
+        whole, alone = attention(shifted), attention(inner)
+    assert whole.shape == (1, 32, 16) and alone.shape == (1, 32, 8)
+    torch.testing.assert_close(whole[..., 4:12], alone)
+    with torch.no_grad():  # unpadded, the same weights see the image's edge, not empty pixels
+        unpadded = Attention(6, width=4)
+        unpadded.load_state_dict(attention.state_dict())
+        assert not torch.allclose(unpadded.eval()(shifted)[..., 4:12], alone, atol=1e-4)
+
+
+def test_square_attention_refuses_a_fill_of_another_channel_count():
+    with pytest.raises(ValueError, match="one value per input channel"):
+        Attention(6, width=4, square_fill=torch.zeros(3))
 
 
 def test_rotated_crop_follows_world_yaw():

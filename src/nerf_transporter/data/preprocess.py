@@ -21,3 +21,9 @@ def network_input(
     depth = (height.float() - HEIGHT_MEAN) / HEIGHT_STD
     channels = torch.cat([rgb, depth.unsqueeze(-1).expand(*depth.shape, 3)], dim=-1)
     return channels.movedim(-1, -3).contiguous()
+
+
+def empty_pixel_input() -> torch.Tensor:
+    """[6] network input of a pixel the SE(2) augmentation leaves empty: colour 0, height 0
+    (`data.augment.Se2Transform.apply_image` fills with 0 before normalisation)."""
+    return network_input(np.zeros((1, 1, 3), np.uint8), np.zeros((1, 1), np.float32))[:, 0, 0]

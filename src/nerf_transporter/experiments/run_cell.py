@@ -130,11 +130,13 @@ MODEL_ARGS_NOT_ARCHITECTURE = (
     "view_choice",
     "log_images_every_n_steps",
     "cuda_graphs",
+    "square_attention",  # a protocol key only where on (PROTOCOL_KEYS_BY_DEFAULT)
 )
 # settings that enter a protocol only where they differ from these values (all its cells were
 # measured under them before the setting existed), so that those cells keep their protocol ids
 PROTOCOL_KEYS_BY_DEFAULT = {
     ("model", "view_choice"): "max_logit",
+    ("model", "square_attention"): False,
     ("data", "augment_distribution"): "uniform",
     ("data", "negative_transform"): "shared",
 }

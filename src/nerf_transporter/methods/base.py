@@ -12,7 +12,12 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_warn
 
 from nerf_transporter import geometry as g
-from nerf_transporter.data.preprocess import COLOUR_MEAN, COLOUR_STD, network_input
+from nerf_transporter.data.preprocess import (
+    COLOUR_MEAN,
+    COLOUR_STD,
+    empty_pixel_input,
+    network_input,
+)
 from nerf_transporter.drawing import heatmap_picture
 from nerf_transporter.models import Attention, ResNet43_8s, Transport, pixel_cross_entropy
 from nerf_transporter.models.graphs import (
@@ -186,6 +191,9 @@ class ImageMethod(Method):
     (`experiments/lightning_cli.py` links them). With `cuda_graphs` (configs/gpu/cuda_graphs.yaml), a fit on CUDA runs each ResNet's training
     forward and backward as captured CUDA graphs (`models.graphs`): the same arithmetic in two
     launches instead of hundreds. It does nothing on the CPU or under autocast (bf16-mixed).
+    With `square_attention` (configs/recipe/square_attention.yaml) the attention networks (the pick;
+    Form2Fit's place too) see their image padded to a square with the augmentation's empty pixels,
+    as MIRA's code does (`models.Attention`); off by default, the table's networks so far.
     """
 
     def __init__(
@@ -195,6 +203,7 @@ class ImageMethod(Method):
         crop_size: int = 64,
         width: int = DEFAULT_WIDTH,
         cuda_graphs: bool = False,
+        square_attention: bool = False,
         **kwargs: Any,
     ) -> None:
         if not (math.isfinite(pixel_size) and pixel_size > 0):
@@ -207,6 +216,11 @@ class ImageMethod(Method):
         self.crop_size = crop_size
         self.width = width
         self.cuda_graphs = cuda_graphs
+        self.square_attention = square_attention
+
+    def attention_fill(self) -> torch.Tensor | None:
+        """The attention networks' `square_fill`: the empty pixel's input, or None (unpadded)."""
+        return empty_pixel_input() if self.square_attention else None
 
     def networks(self) -> list[ResNet43_8s]:
         """The method's fully convolutional networks (what `cuda_graphs` captures)."""
@@ -262,7 +276,7 @@ class AttentionTransportMethod(ImageMethod):
     def __init__(self, feature_channels: int = 3, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.feature_channels = feature_channels
-        self.attention = Attention(6, self.width)
+        self.attention = Attention(6, self.width, self.attention_fill())
         self.transport = Transport(
             6, feature_channels, self.n_rotations, self.crop_size, self.width
         )

@@ -32,7 +32,9 @@ class Form2Fit(ImageMethod):
     def __init__(self, descriptor_dim: int = 16, margin: float = 1.0, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.margin = margin
-        self.nets = Form2FitNets(6, self.n_rotations, self.crop_size, self.width, descriptor_dim)
+        self.nets = Form2FitNets(
+            6, self.n_rotations, self.crop_size, self.width, descriptor_dim, self.attention_fill()
+        )
 
     def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
         image = batch["image"]

@@ -27,11 +27,12 @@ class Form2FitNets(nn.Module):
         crop_size: int = 64,
         width: int = 64,
         descriptor_dim: int = 16,
+        square_fill: torch.Tensor | None = None,
     ) -> None:
         super().__init__()
         self.crop_size = crop_size
-        self.pick = Attention(in_channels, width)
-        self.place = Attention(in_channels, width)
+        self.pick = Attention(in_channels, width, square_fill)
+        self.place = Attention(in_channels, width, square_fill)
         self.descriptor = ResNet43_8s(in_channels, descriptor_dim, width)
         self.register_buffer("angles", bin_angles(n_rotations), persistent=False)
 
