@@ -26,7 +26,7 @@ import numpy as np
 
 from nerf_transporter import geometry as g
 from nerf_transporter.evaluation.view_search import grid_step
-from nerf_transporter.experiments.cells import load_record
+from nerf_transporter.experiments.failures import records_of_task
 from nerf_transporter.sim import make_env
 
 TASK = "place-red-in-green"
@@ -101,18 +101,16 @@ def entry_text(tally: dict[str, int]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("records", type=Path, nargs="+", help="mira cell or test record files")
+    parser.add_argument(
+        "records", type=Path, nargs="+", help="mira cell files or folders, or test record files"
+    )
     parser.add_argument("--json", action="store_true", help="end with one JSON line")
     args = parser.parse_args(argv)
     try:
-        records = [load_record(path) for path in args.records]
-    except (OSError, ValueError) as error:
+        records = records_of_task(args.records, TASK)
+    except (OSError, ValueError) as error:  # a cell or record it cannot read, or none of TASK
         print(f"green_bowls.py: {error}", file=sys.stderr)
         return 2
-    records = [r for r in records if r["task"] == TASK]
-    if not records:
-        print(f"no {TASK} records among {', '.join(map(str, args.records))}", file=sys.stderr)
-        return 1
     print(
         "| record | setting | all | one green bowl | two | three |\n| --- | --- | --- | --- | --- | --- |"
     )

@@ -26,8 +26,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from nerf_transporter.experiments.cells import load_record
-from nerf_transporter.experiments.failures import load_records
+from nerf_transporter.experiments.failures import records_of_task
 from nerf_transporter.experiments.report import seed_outcomes
 from nerf_transporter.sim import make_env
 from nerf_transporter.sim.tasks.hanging_disks import TEST_COLORS
@@ -94,16 +93,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--json", action="store_true", help="end with one JSON line")
     args = parser.parse_args(argv)
-    try:  # the newest cell a row of each folder, as the table; every file named, as given
-        cells, _ = load_records([path for path in args.cells if not path.is_file()])
-        cells += [load_record(path) for path in args.cells if path.is_file()]
-    except (OSError, ValueError) as error:  # a cell or record it cannot read
+    try:
+        cells = records_of_task(args.cells, TASK)
+    except (OSError, ValueError) as error:  # a cell or record it cannot read, or none of TASK
         print(f"hanging_disk_colours.py: {error}", file=sys.stderr)
         return 2
-    cells = [cell for cell in cells if cell["task"] == TASK]
-    if not cells:
-        print(f"no {TASK} cells among {', '.join(map(str, args.cells))}", file=sys.stderr)
-        return 1
     if args.seeds is not None:
         cells = [
             cell

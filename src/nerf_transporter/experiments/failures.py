@@ -477,6 +477,18 @@ def load_records(paths: list[Path]) -> tuple[list[dict[str, Any]], list[dict[str
     return kept, tests
 
 
+def records_of_task(paths: list[Path], task: str) -> list[dict[str, Any]]:
+    """Every record of `task` among `paths`, for a breakdown of its episodes: the newest cell a row
+    of each folder (as the table) and every file, as given (two fits of one row side by side);
+    each checked. ValueError where one cannot be read or none is of `task`."""
+    cells, _ = load_records([path for path in paths if not path.is_file()])
+    records = cells + [load_record(path) for path in paths if path.is_file()]
+    records = [record for record in records if record["task"] == task]
+    if not records:
+        raise ValueError(f"no {task} cells or records among {', '.join(map(str, paths))}")
+    return records
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="nerf-transporter failures",
