@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from nerf_transporter import geometry as g
-from nerf_transporter.evaluation.view_search import grid_step
+from nerf_transporter.evaluation.view_search import view_steps
 from nerf_transporter.experiments.failures import records_of_task
 from nerf_transporter.sim import make_env
 
@@ -60,8 +60,7 @@ def aimed_view_steps(
     place = np.asarray(place, dtype=float)
     distances = [np.linalg.norm(np.asarray(origin[:2]) - place[:2]) for origin, _, _ in bowls]
     _, roll, pitch = bowls[int(np.argmin(distances))]
-    aimed = grid[g.nearest_view(roll, pitch, grid)]
-    return int(round(float(np.abs(np.asarray(chosen) - aimed).max() / grid_step(grid))))
+    return view_steps(chosen, grid[g.nearest_view(roll, pitch, grid)], grid)
 
 
 def by_bowl_count(

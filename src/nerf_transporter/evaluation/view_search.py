@@ -39,6 +39,13 @@ def grid_step(views: np.ndarray) -> float:
     return float(np.min(np.diff(rolls))) if len(rolls) > 1 else float("inf")
 
 
+def view_steps(first: np.ndarray, second: np.ndarray, views: np.ndarray) -> int:
+    """Grid steps between two (roll, pitch) views of the grid `views`: the larger of the roll and
+    the pitch steps (0 = the same view, 1 = a neighbour)."""
+    difference = np.abs(np.asarray(first, dtype=float) - np.asarray(second, dtype=float)).max()
+    return int(round(float(difference / grid_step(views))))
+
+
 def true_action(task: Any, env: Any, pick: g.Pose) -> dict[str, g.Pose]:
     """The oracle's action for the policy's own pick: the place that brings the object to the
     target the oracle aims for (`task.oracle_target`) when held at `pick`."""
@@ -60,12 +67,11 @@ def view_search_record(
     views = np.asarray(views, dtype=float)
     view_action = to_view_frames(truth, views)
     chosen, true = search.chosen_view, view_action.place_view
-    steps = np.abs(views[chosen] - views[true]).max() / grid_step(views)
     record = {
         "chosen_view": [float(a) for a in views[chosen]],
         "true_view": [float(a) for a in views[true]],
         "true_view_rank": search.view_rank(true),
-        "view_steps": int(round(float(steps))),
+        "view_steps": view_steps(views[chosen], views[true], views),
         "true_view_pixel_error": None,
         "true_view_rotation_error": None,
     }

@@ -40,10 +40,8 @@ class Attention(nn.Module):
         height, width = image.shape[-2:]
         side = max(height, width)
         top, left = (side - height) // 2, (side - width) // 2
-        square = self.square_fill.to(image.dtype)[:, None, None].expand(
-            *image.shape[:-2], side, side
-        )
-        square = square.clone()
+        fill = self.square_fill.to(image.dtype)[:, None, None]
+        square = fill.expand(*image.shape[:-2], side, side).clone()
         square[..., top : top + height, left : left + width] = image
         return self.net(square).squeeze(1)[..., top : top + height, left : left + width]
 
