@@ -152,3 +152,14 @@ def test_a_generated_seed_and_the_same_seed_evaluated_are_seen_alike(tmp_path):
     colour, height = heightmap_from_rgbd(stored["rgbd"], PIXEL)
     np.testing.assert_array_equal(seen["heightmap"]["colour"], colour)
     np.testing.assert_array_equal(seen["heightmap"]["height"], height)
+
+
+def test_the_distortion_loss_names_data_of_its_own_only_when_on():
+    """distortion_weight came after every dataset was built: at 0 (off) their names stay."""
+    default = SceneSpec("block-insertion", pixel_size=PIXEL)
+    off = SceneSpec("block-insertion", pixel_size=PIXEL, imagery_options={"distortion_weight": 0.0})
+    on = SceneSpec("block-insertion", pixel_size=PIXEL, imagery_options={"distortion_weight": 0.01})
+    assert off.imagery_changes() == default.imagery_changes()
+    assert on.imagery_changes() == default.imagery_changes() | {"distortion_weight": 0.01}
+    names = {GenerationConfig(scene=scene).dataset_name() for scene in (default, off, on)}
+    assert len(names) == 2

@@ -19,6 +19,7 @@ from nerf_transporter.imagery.fields import (
     RadianceField,
     grid_nodes,
 )
+from nerf_transporter.imagery.losses import binary_entropy, distortion
 from nerf_transporter.imagery.rays import (
     Rays,
     depth_to_height,
@@ -75,6 +76,9 @@ class ImageryConfig:
     binary_weight: float = 0.1  # times the entropy of the floor's share of each ray
     binary_ramp: float = 0.25  # fraction of the iterations over which binary_weight ramps up
     floor_smoothness_weight: float = 0.01  # times the mean squared colour step of the floor map
+    # times mip-NeRF 360's distortion loss (metres; `losses.distortion`): each ray's weight in one
+    # short stretch. 0: off (the default; docs/imagery.md, "The distortion loss")
+    distortion_weight: float = 0.0
     # the dense field's starting colour: "table": the captures' median colour, the floor map's
     # start, so that density costs the colour loss nothing until the field's colour is learned; or
     # "grey" (0.5; the reference imagery's): under it, objects brighter than grey on a bright table,
@@ -229,16 +233,6 @@ def _floor_rays(
     return torch.cat(chosen)
 
 
-def _binary_entropy(probability: torch.Tensor) -> torch.Tensor:
-    """Mean entropy of probabilities: low when each is near 0 or 1.
-
-    A textureless table lets a half-transparent object blend to the right colour from every
-    camera; this term makes each ray either end on the floor or be stopped by the field.
-    """
-    p = probability.clamp(1e-6, 1.0 - 1e-6)
-    return -(p * p.log() + (1.0 - p) * (1.0 - p).log()).mean()
-
-
 def _stage_at(config: ImageryConfig, iteration: int) -> int:
     progress = iteration / config.iterations
     stage = 0
@@ -338,9 +332,11 @@ def _fit_scene(
         loss = (
             colour_loss
             + config.sparsity_weight * sparsity
-            + config.binary_weight * ramp * _binary_entropy(output.floor_weight)
+            + config.binary_weight * ramp * binary_entropy(output.floor_weight)
             + config.floor_smoothness_weight * floor.smoothness()
         )
+        if config.distortion_weight:
+            loss = loss + config.distortion_weight * distortion(output, settings.step, rays.floor)
         if not torch.isfinite(loss):
             raise NonFiniteLossError(
                 f"fitting loss became {float(loss.detach())} at iteration {iteration}; the fit was stopped "

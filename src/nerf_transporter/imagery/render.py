@@ -41,6 +41,8 @@ class RayOutput:
     depth: torch.Tensor  # [R] expected termination distance
     alpha: torch.Tensor  # [S] opacity of every sample taken (for regularisers)
     floor_weight: torch.Tensor  # [R] transmittance left for the floor
+    weights: torch.Tensor  # [S] each sample's share of its ray (for regularisers)
+    samples: RaySamples  # where those samples lie
 
 
 def _composite(
@@ -64,7 +66,7 @@ def _composite(
     hit = torch.addcmul(rays.origins, rays.floor[:, None], rays.directions)
     colour = colour + remaining[:, None] * floor(hit)
     depth = depth + remaining * rays.floor
-    return RayOutput(colour, depth, alpha, remaining)
+    return RayOutput(colour, depth, alpha, remaining, weights, samples)
 
 
 def render_rays_train(
