@@ -24,7 +24,9 @@ object, whatever its class then (docs/failures.md, "Picks on the image's corner"
 Erred episodes (not counted in a cell's rate) are counted apart. Successes whose aim was off count
 too: how often the world forgives an aim (block-insertion's flat placements, docs/six_dof.md).
 A second table gives success against the tilt of the target aimed at (its normal from the
-vertical); a third pairs mira with every other row of its column on the same test seeds (both,
+vertical), a third against the aim's tilt error (the carried object's tilt against its target's,
+for the episodes that picked the object: where a check free of tilt still fails on a tilted
+release, as place-red-in-green's steep bowls do); mira's view search follows, and a last table pairs mira with every other row of its column on the same test seeds (both,
 only one, neither succeeded, and the exact McNemar p-value), e.g. mira with NeRF against mira with
 oracle imagery: the NeRF-vs-oracle gap.
 A test record given as a file (`evaluate-checkpoints --split test`, `lightning test`: a checkpoint
@@ -78,6 +80,9 @@ AIMED_WITHIN_TOLERANCE = "aimed within tolerance"
 POSE_PARTS = ("position", "tilt", "yaw")
 ENDED_AWAY_M = 0.05  # a failure whose object ended farther than this from its target left it
 TILT_BINS_DEG = (0, 10, 20, 30, 90)  # target tilt bins of the success-by-tilt table
+# bins of the aim's tilt error (the carried object's against its target's) of the success-by-aim
+# table: where the place's tilt, not its position, decides (place-red-in-green's steep bowls)
+TILT_ERROR_BINS_DEG = (0, 5, 10, 15, 20, 30, 180)
 
 
 class FailureAnalysisError(ValueError):
@@ -289,6 +294,7 @@ def summary(record: Mapping[str, Any], diagnoses: list[dict[str, Any]]) -> dict[
             "failures": median_target_tilt(failures),
         },
         "success_by_target_tilt": success_by_target_tilt(diagnoses),
+        "success_by_aim_tilt_error": success_by_aim_tilt_error(diagnoses),
         "view_search": view_search_by_outcome(record),
     }
 
@@ -343,15 +349,38 @@ def view_search_table(summaries: list[dict[str, Any]]) -> tuple[list[str], list[
     return header, rows
 
 
+def _success_by_bin(
+    diagnoses: list[dict[str, Any]], values: list[float | None], bins: tuple[int, ...]
+) -> dict[str, list[int]]:
+    """'<low>-<high>' -> [successes, episodes] of the diagnoses whose value (None: not counted)
+    falls in that bin."""
+    counted = [(d, v) for d, v in zip(diagnoses, values, strict=True) if v is not None]
+    return {
+        f"{low}-{high}": [
+            sum(d["class"] == "success" for d, v in counted if low <= v < high),
+            sum(1 for _, v in counted if low <= v < high),
+        ]
+        for low, high in pairwise(bins)
+    }
+
+
 def success_by_target_tilt(diagnoses: list[dict[str, Any]]) -> dict[str, list[int]]:
     """'<low>-<high>' deg (`TILT_BINS_DEG`) -> [successes, episodes] of the counted episodes whose
     target tilt falls in that bin."""
-    counted = [d for d in diagnoses if d["class"] != "erred" and d["target_tilt_deg"] is not None]
-    bins = {}
-    for low, high in pairwise(TILT_BINS_DEG):
-        inside = [d for d in counted if low <= d["target_tilt_deg"] < high]
-        bins[f"{low}-{high}"] = [sum(d["class"] == "success" for d in inside), len(inside)]
-    return bins
+    tilts = [None if d["class"] == "erred" else d["target_tilt_deg"] for d in diagnoses]
+    return _success_by_bin(diagnoses, tilts, TILT_BINS_DEG)
+
+
+def success_by_aim_tilt_error(diagnoses: list[dict[str, Any]]) -> dict[str, list[int]]:
+    """'<low>-<high>' deg (`TILT_ERROR_BINS_DEG`) -> [successes, episodes] of the episodes that
+    picked the object, by their aim's tilt error (erred ones and picks of another body apart)."""
+    errors = [
+        math.degrees(d["aim"]["errors"]["tilt"])
+        if d["class"] != "erred" and d["picked_object"] and d["aim"] is not None
+        else None
+        for d in diagnoses
+    ]
+    return _success_by_bin(diagnoses, errors, TILT_ERROR_BINS_DEG)
 
 
 def _row_label(entry: dict[str, Any]) -> str:
@@ -410,15 +439,17 @@ def summary_table(summaries: list[dict[str, Any]]) -> tuple[list[str], list[list
     return header, rows
 
 
-def tilt_table(summaries: list[dict[str, Any]]) -> tuple[list[str], list[list[str]]]:
-    """One row per cell: successes / episodes per target-tilt bin."""
-    bins = [f"{low}-{high}" for low, high in pairwise(TILT_BINS_DEG)]
-    header = ["column", "method", *(f"target tilt {name} deg" for name in bins)]
+def binned_table(
+    summaries: list[dict[str, Any]], key: str, bins: tuple[int, ...], label: str
+) -> tuple[list[str], list[list[str]]]:
+    """One row per cell: successes / episodes per bin of the summaries' `key` entry."""
+    names = [f"{low}-{high}" for low, high in pairwise(bins)]
+    header = ["column", "method", *(f"{label} {name} deg" for name in names)]
     rows = [
         [
             column_name(entry["task"], entry["setting"], entry["trained_setting"]),
             _row_label(entry),
-            *("{}/{}".format(*entry["success_by_target_tilt"][name]) for name in bins),
+            *("{}/{}".format(*entry[key][name]) for name in names),
         ]
         for entry in summaries
     ]
@@ -530,7 +561,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"nerf-transporter failures: {error}", file=sys.stderr)
         return 2
     summaries = [entry for entry, _ in analysed]
-    tables = [summary_table(summaries), tilt_table(summaries)]
+    tables = [
+        summary_table(summaries),
+        binned_table(summaries, "success_by_target_tilt", TILT_BINS_DEG, "target tilt"),
+        binned_table(
+            summaries, "success_by_aim_tilt_error", TILT_ERROR_BINS_DEG, "aim's tilt error"
+        ),
+    ]
     if views := view_search_table(summaries):
         tables.append(views)
     if paired := paired_table(cells):
