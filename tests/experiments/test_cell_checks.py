@@ -85,6 +85,7 @@ NORMAL_EDITS: dict[str, Edit] = {
         fit={"protocol_id": cell["protocol_id"], "run_dir": "x", "checkpoint": "y"}
     ),
     r"overlays \[3\] are not config paths": lambda cell: cell.update(overlays=[3]),
+    r"machine.fit\[0\]: cpu is 3, not": lambda cell: cell["machine"]["fit"][0].update(cpu=3),
     'outcome "failure" is not success': lambda cell: cell["episode_results"][0].update(
         outcome="failure"
     ),

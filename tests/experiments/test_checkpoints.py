@@ -33,6 +33,9 @@ def test_every_checkpoint_of_a_run_is_evaluated_and_the_best_named(
     (run / "checkpoints" / "truncated.ckpt").write_bytes(b"PK\x03\x04 cut short")
     torch.save({"payload": Exploit()}, run / "checkpoints" / "pickled.ckpt")
 
+    fitted_on = {"cpu": "the CPU run-cell fitted it on", "gpu": None}
+    (run / "fit-segments.json").write_text(json.dumps([{"machine": fitted_on}]))
+
     argv = [str(run), "--split", "validation", "--episodes", "2", "--cache-dir", str(tmp_path)]
     with caplog.at_level(logging.WARNING):
         assert cli_main(["evaluate-checkpoints", *argv, "--json", "--eval-workers", "2"]) == 0
@@ -54,6 +57,10 @@ def test_every_checkpoint_of_a_run_is_evaluated_and_the_best_named(
         assert record["method"] == "gt_state_mlp" and record["split"] == "validation"
         seeds = [episode["seed"] for episode in record["episode_results"]]
         assert seeds == [1_000_000, 1_000_001]
+        # each record names the code and the machines it comes from
+        assert len(record["git"]["commit"]) == 40
+        assert record["machine"]["fit"] == [fitted_on]
+        assert record["machine"]["test"]["cpu"] and record["machine"]["test"]["gpu"] is None
     # evaluating again adds files beside the first ones: nothing is replaced
     assert cli_main(["evaluate-checkpoints", *argv, "--eval-workers", "1"]) == 0
     assert (run / "evaluation" / "step2-validation-normal-2.json").is_file()

@@ -181,7 +181,13 @@ PROTOCOL_OPTIONAL = {
 }
 FIT_FIELDS = {"protocol_id": "str", "run_dir": "str", "checkpoint": "str"}
 TEST_RECORD_FIELDS = {"split": "str"}
-TEST_RECORD_OPTIONAL = {"checkpoint": "str?", "checkpoint_sha256": "str?", "global_step": "int?"}
+TEST_RECORD_OPTIONAL = {
+    "checkpoint": "str?",
+    "checkpoint_sha256": "str?",
+    "global_step": "int?",
+    "machine": "dict",
+    "git": "dict?",
+}
 EPISODE_FIELDS = {"seed": "int", "success": "bool"}
 EPISODE_OPTIONAL = {"outcome": "str", "error": "str?", "failure": "str?", "strict_success": "bool?"}
 
@@ -359,13 +365,18 @@ def _check_cell(record: dict[str, Any], where: str) -> None:
     _check_fields(record["checkpoint"], {"step": "int"}, {"path": "str"}, f"{where}: checkpoint")
     for index, entry in enumerate(record.get("validation", [])):
         _check_round(entry, protocol.get("validation_episodes"), f"{where}: validation[{index}]")
+    if not all(isinstance(overlay, str) for overlay in record.get("overlays", [])):
+        raise CellFileError(f"{where}: overlays {record['overlays']} are not config paths")
+    _check_fit(record, where)
+
+
+def _check_machine(record: dict[str, Any], where: str) -> None:
+    """The machines a cell or test record names: those its checkpoint was fitted on (`fit`, a
+    list) and the one that tested it (`test`)."""
     machine = record.get("machine", {})
     _check_fields(machine, {}, {"fit": "list", "test": "dict"}, f"{where}: machine")
     for index, fit in enumerate(machine.get("fit", [])):
         _check_fields(fit, {}, {"cpu": "str?", "gpu": "str?"}, f"{where}: machine.fit[{index}]")
-    if not all(isinstance(overlay, str) for overlay in record.get("overlays", [])):
-        raise CellFileError(f"{where}: overlays {record['overlays']} are not config paths")
-    _check_fit(record, where)
 
 
 def _check_round(entry: Any, episodes: int | None, where: str) -> None:
@@ -503,6 +514,7 @@ def _checked(record: Any, path: Path, world: str | None) -> dict[str, Any]:
         _check_cell(record, where)
     else:
         _check_fields(record, TEST_RECORD_FIELDS, TEST_RECORD_OPTIONAL, where)
+    _check_machine(record, where)
     _check_counts(record, where)
     _check_episodes(record, where)
     return record | {"path": where}

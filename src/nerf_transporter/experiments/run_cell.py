@@ -60,7 +60,6 @@ import logging
 import math
 import os
 import socket
-import subprocess
 import sys
 import time
 import warnings
@@ -98,6 +97,7 @@ from nerf_transporter.experiments.checkpoints import (
     validation_records,
 )
 from nerf_transporter.experiments.lightning_cli import build_cli
+from nerf_transporter.experiments.provenance import SEGMENTS, git_state, read_segments
 from nerf_transporter.experiments.runs import (
     NoRunToResumeError,
     claim_version,
@@ -113,7 +113,6 @@ CALLBACK = "SuccessRateCallback"
 CHECKPOINT = "ModelCheckpoint"
 OFFLINE_VIEW_SEARCH = "OfflineViewSearch"  # mira's view search on demonstrations; no gradients
 MONITOR = "eval/success_rate"
-SEGMENTS = "fit-segments.json"  # in a run folder: one entry per fit started there
 FORCED = "forced-fit"  # in a run folder claimed by --force: resumed by --force until its cell lands
 LOCK = ".run-cell.lock"  # in a protocol's folder: held by the one run-cell fitting or validating
 TEST_LOCK = ".run-cell-test-{setting}.lock"  # there: held by the one run-cell testing in a setting
@@ -722,30 +721,6 @@ def check_fitted_as(run_dir: Path, config: dict[str, Any]) -> None:
             )
 
 
-def git_state() -> dict[str, Any]:
-    """{"commit": HEAD of the package's checkout, "dirty": tracked files changed}; None each
-    outside a git checkout."""
-    root = Path(__file__).resolve().parent
-
-    def git(*args: str) -> str | None:
-        try:
-            result = subprocess.run(
-                ["git", "-C", str(root), *args], capture_output=True, text=True, timeout=30
-            )
-        except (OSError, subprocess.SubprocessError):
-            return None
-        return result.stdout.strip() if result.returncode == 0 else None
-
-    commit = git("rev-parse", "HEAD")
-    status = git("status", "--porcelain", "--untracked-files=no") if commit else None
-    return {"commit": commit, "dirty": None if status is None else bool(status)}
-
-
-def _read_segments(run_dir: Path) -> list[dict[str, Any]]:
-    path = run_dir / SEGMENTS
-    return json.loads(path.read_text()) if path.exists() else []
-
-
 def fit(config: dict[str, Any], run_dir: Path, resume: Path | None, device: str) -> None:
     """`lightning fit` of `config` (handed over as YAML text: no file is left behind) logging into
     `run_dir`, from `resume` if given; the segment (start, commit, machine, wall-clock time once
@@ -761,7 +736,7 @@ def fit(config: dict[str, Any], run_dir: Path, resume: Path | None, device: str)
             "default_hp_metric": False,
         },
     }
-    segments = _read_segments(run_dir)
+    segments = read_segments(run_dir)
     segment = {
         "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "start_time": time.time(),
@@ -781,7 +756,7 @@ def train_wall_s(run_dir: Path) -> float:
     """Wall-clock time of the run's fit segments; an interrupted one counts up to the newest
     checkpoint it wrote before the next segment started (the steps after it were trained again)."""
     checkpoints = [path.stat().st_mtime for path in (run_dir / "checkpoints").glob("*.ckpt")]
-    segments = _read_segments(run_dir)
+    segments = read_segments(run_dir)
     ends = [segment["start_time"] for segment in segments[1:]] + [float("inf")]
     total = 0.0
     for segment, next_start in zip(segments, ends, strict=True):
@@ -975,7 +950,7 @@ def _test(
         test_wall_s = time.perf_counter() - start
     if record["errors"]:
         return path, record
-    segments = _read_segments(run_dir)
+    segments = read_segments(run_dir)
     payload = {
         "protocol": protocol,
         "protocol_id": protocol_id(protocol),

@@ -1,0 +1,36 @@
+"""Where a result was made: the code's commit, and the machines a run was fitted on."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+from typing import Any
+
+SEGMENTS = "fit-segments.json"  # in a run folder: one entry per fit started there
+
+
+def git_state() -> dict[str, Any]:
+    """{"commit": HEAD of the package's checkout, "dirty": tracked files changed}; None each
+    outside a git checkout."""
+    root = Path(__file__).resolve().parent
+
+    def git(*args: str) -> str | None:
+        try:
+            result = subprocess.run(
+                ["git", "-C", str(root), *args], capture_output=True, text=True, timeout=30
+            )
+        except (OSError, subprocess.SubprocessError):
+            return None
+        return result.stdout.strip() if result.returncode == 0 else None
+
+    commit = git("rev-parse", "HEAD")
+    status = git("status", "--porcelain", "--untracked-files=no") if commit else None
+    return {"commit": commit, "dirty": None if status is None else bool(status)}
+
+
+def read_segments(run_dir: Path) -> list[dict[str, Any]]:
+    """The fits started in a run folder (`SEGMENTS`, written by run-cell): start, commit, machine
+    and wall-clock time of each; [] for a run fitted otherwise (`lightning fit`)."""
+    path = run_dir / SEGMENTS
+    return json.loads(path.read_text()) if path.exists() else []
