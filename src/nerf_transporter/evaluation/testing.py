@@ -43,11 +43,13 @@ from lightning.pytorch.callbacks import Callback
 
 from nerf_transporter.atomic import write_new_json
 from nerf_transporter.data.episode import file_sha256
+from nerf_transporter.device_info import describe_device
 from nerf_transporter.evaluation.metrics import cell, summarize
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluators
 from nerf_transporter.evaluation.view_search import summary as view_search_summary
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.pretrained import PRETRAINED_DIR
+from nerf_transporter.provenance import git_state
 from nerf_transporter.sim.fingerprint import world_fingerprint
 
 # the strict check's figures logged by `trainer.test` (test/<name>), where the episodes have it
@@ -91,7 +93,8 @@ def results_record(
     "checkpoint_sha256" the content hash of the checkpoint file tested (None without a local
     file), by which `export-pretrained` knows it. A method's test-time options
     (`Method.test_time_options`: mira's view choice) and, for mira, the view search's figures
-    (`evaluation.view_search.summary`) follow the success figures.
+    (`evaluation.view_search.summary`) follow the success figures; "git" (the commit this ran at)
+    and "machine" (`test`: the machine and device that ran the policy) say where they come from.
     """
     results = sorted(results, key=lambda result: result["seed"])
     view_search = view_search_summary([result.get("view_search") for result in results])
@@ -113,9 +116,17 @@ def results_record(
         **({"test_time_options": options} if options else {}),
         **({"view_search": view_search} if view_search else {}),
         "wall_s": wall_s,
+        "git": git_state(),
+        "machine": {"test": describe_device(_device_of(method))},
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "episode_results": results,
     }
+
+
+def _device_of(method: Any) -> torch.device:
+    """Where a policy's weights live (the CPU for a policy without any)."""
+    parameters = method.parameters() if isinstance(method, torch.nn.Module) else ()
+    return next((parameter.device for parameter in parameters), torch.device("cpu"))
 
 
 def evaluate_policy(

@@ -30,13 +30,12 @@ from nerf_transporter.atomic import check_writable, write_new_json
 from nerf_transporter.console import HelpFormatter
 from nerf_transporter.data.generate import add_imagery_option_argument
 from nerf_transporter.data.observation import IMAGERY_KINDS
-from nerf_transporter.device_info import describe_device
 from nerf_transporter.evaluation.metrics import cell
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, Evaluators
 from nerf_transporter.evaluation.testing import checkpoint_step, evaluate_policy
 from nerf_transporter.evaluation.view_search import view_search_text
-from nerf_transporter.experiments.provenance import git_state, read_segments
 from nerf_transporter.methods.mira import VIEW_CHOICES
+from nerf_transporter.provenance import read_segments
 from nerf_transporter.splits import split_seed
 
 log = logging.getLogger(__name__)
@@ -283,9 +282,10 @@ def evaluate_checkpoints(
 
     Before the first episode: a checkpoint naming other classes than this package's is refused
     (UntrustedCheckpointError), and the records' folder and `video_dir` must be writable
-    (`atomic.UnwritableError`). Each record names the commit (`git`) and the machines (`machine`:
-    `fit`, `test`) it comes from. A checkpoint that cannot be loaded is skipped with a warning;
-    NoLoadableCheckpointError, naming each with its reason, where none could be."""
+    (`atomic.UnwritableError`). Each record names the machines the run was fitted on
+    (`machine.fit`) beside its own commit and test machine (`results_record`). A checkpoint that
+    cannot be loaded is skipped with a warning; NoLoadableCheckpointError, naming each with its
+    reason, where none could be."""
     checkpoints = checkpoint_steps(run_dir) if only is None else chosen_checkpoints(run_dir, only)
     if not checkpoints:
         raise FileNotFoundError(f"no readable .ckpt files under {run_dir}")
@@ -297,15 +297,9 @@ def evaluate_checkpoints(
     device = device or torch.device("cuda" if torch.cuda.is_available() else "cpu")
     seeds = [split_seed(split, index) for index in range(episodes)]
     options = {} if view_choice is None else {"view_choice": view_choice}
-    # where the figures come from: this checkout's commit, the machines the run was fitted on
-    # (run-cell's fits; none recorded for a plain `lightning fit`) and the one testing it
-    provenance = {
-        "git": git_state(),
-        "machine": {
-            "fit": [segment["machine"] for segment in read_segments(run_dir)],
-            "test": describe_device(device),
-        },
-    }
+    # the machines the run was fitted on (run-cell's fits; none recorded for a plain `lightning
+    # fit`), beside the record's own (the one testing it)
+    fitted_on = [segment["machine"] for segment in read_segments(run_dir)]
     records, unloadable = [], []
     with Evaluators() as evaluators:
         for step, path in checkpoints:
@@ -332,7 +326,7 @@ def evaluate_checkpoints(
                 video_dir=video_dir / path.stem if video_dir else None,
                 evaluators=evaluators,
             )
-            record |= provenance
+            record["machine"] = {"fit": fitted_on, **record["machine"]}
             # named with what was asked beyond the training's: imagery, view choice, options
             suffix = "".join(f"-{choice}" for choice in (imagery, view_choice) if choice)
             suffix += imagery_options_suffix(imagery_options)

@@ -97,7 +97,6 @@ from nerf_transporter.experiments.checkpoints import (
     validation_records,
 )
 from nerf_transporter.experiments.lightning_cli import build_cli
-from nerf_transporter.experiments.provenance import SEGMENTS, git_state, read_segments
 from nerf_transporter.experiments.runs import (
     NoRunToResumeError,
     claim_version,
@@ -105,6 +104,7 @@ from nerf_transporter.experiments.runs import (
     removed_if_unused,
 )
 from nerf_transporter.methods import METHODS
+from nerf_transporter.provenance import SEGMENTS, git_state, read_segments
 from nerf_transporter.sim.registration import TASK_NAMES
 from nerf_transporter.sim.tasks import SETTINGS
 from nerf_transporter.splits import split_seed
