@@ -26,9 +26,10 @@ too: how often the world forgives an aim (block-insertion's flat placements, doc
 A second table gives success against the tilt of the target aimed at (its normal from the
 vertical), a third against the aim's tilt error (the carried object's tilt against its target's,
 for the episodes that picked the object: where a check free of tilt still fails on a tilted
-release, as place-red-in-green's steep bowls do); mira's view search follows, and a last table pairs mira with every other row of its column on the same test seeds (both,
-only one, neither succeeded, and the exact McNemar p-value), e.g. mira with NeRF against mira with
-oracle imagery: the NeRF-vs-oracle gap.
+release, as place-red-in-green's steep bowls do); mira's view search follows, and a last table
+pairs mira with every other row of its column on the same test seeds (both, only one, neither
+succeeded, and the exact McNemar p-value), e.g. mira with NeRF against mira with oracle imagery:
+the NeRF-vs-oracle gap.
 A test record given as a file (`evaluate-checkpoints --split test`, `lightning test`: a checkpoint
 tested outside the table, e.g. on the other imagery) is analysed too, after the cells, named by its
 file and left out of the pairs (`compare-cells` pairs it).
