@@ -90,3 +90,39 @@ def test_image_shape_scales_with_pixel_size():
     point = np.array([0.6, 0.1, 0.05])
     pixel = g.world_to_pixel(point, 0.0125)
     assert np.allclose(g.pixel_to_world(pixel, 0.05, 0.0125), point)
+
+
+@pytest.mark.parametrize(
+    "a_shape,b_shape",
+    [
+        ((3, 3), (3, 3)),
+        ((4, 4), (4,)),
+        ((3,), (3, 3)),
+        ((3,), (3,)),
+        ((50, 3), (3, 3)),
+        ((7, 3, 3), (3, 3)),
+        ((2, 5, 3), (3, 4)),
+    ],
+)
+def test_matmul_is_numpys_product_in_every_shape(a_shape, b_shape):
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=a_shape), rng.normal(size=b_shape)
+    product = g.matmul(a, b)
+    assert np.shape(product) == np.shape(a @ b)
+    assert np.allclose(product, a @ b, rtol=0, atol=1e-12)
+
+
+def test_matmul_sums_in_index_order_and_refuses_misaligned_shapes():
+    # (1e16 + 1) - 1e16 in index order: the 1 is lost, as the documented order says
+    assert g.matmul([1e16, 1.0, -1e16], [1.0, 1.0, 1.0]) == 0.0
+    with pytest.raises(ValueError, match=r"shapes \(3,\) and \(4,\) do not align"):
+        g.matmul(np.ones(3), np.ones(4))
+
+
+def test_rigid_inverse_norm_and_cos_sin():
+    pose = (np.array([0.4, -0.2, 0.1]), g.euler_to_quat(0.3, -0.2, 1.0))
+    matrix = g.pose_to_matrix(pose)
+    assert np.allclose(g.matmul(matrix, g.invert_transform(matrix)), np.eye(4), atol=1e-12)
+    assert g.norm([3.0, 4.0]) == 5.0
+    angles = np.array([0.0, 0.5, -2.0])
+    assert np.array_equal(g.cos_sin(angles), [[math.cos(a), math.sin(a)] for a in angles])

@@ -9,6 +9,8 @@ Conventions (docs/conventions.md, "Frames and units" to "Views and the view grid
 - View v is the rotation R_v = Ry(pitch_v) . Rx(roll_v); world point P is seen in view v at
   P' = R_v^T (P - c) + c, and P' is mapped to pixels and height as in the top-down image.
 - Quaternions are (x, y, z, w), as PyBullet uses them. A pose is (xyz, quat_xyzw).
+
+The world's arithmetic gives the same bits on every CPU ("Arithmetic the same on every CPU" below).
 """
 
 from __future__ import annotations
@@ -33,6 +35,56 @@ VIEW_GRIDS = {
 
 
 # ---------------------------------------------------------------------------------------------
+# Arithmetic the same on every CPU
+# ---------------------------------------------------------------------------------------------
+# numpy hands `@`, `dot`, the norm of a vector and `linalg.inv` / `solve` to BLAS and LAPACK, whose
+# kernels are chosen per CPU (another summation order, fused multiply-adds), and computes sin and
+# cos of arrays with its own SIMD code on some CPUs. An episode's physics amplifies a last-bit
+# difference in a commanded pose into another settled scene, so the world (this module and `sim/`)
+# computes with these instead: elementwise products summed in a fixed order, and libm's sin and
+# cos. tests/sim/test_trace.py plays the world's trace under another BLAS kernel to hold this.
+
+
+def matmul(a: np.ndarray | Sequence, b: np.ndarray | Sequence) -> np.ndarray:
+    """`a @ b` (numpy's rules for stacks of matrices and for vectors), each entry summed term by
+    term in index order: the same bits whatever BLAS kernel the CPU gets."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if a.ndim == 0 or b.ndim == 0:
+        raise ValueError("matmul: a scalar operand (use *)")
+    left = a[None, :] if a.ndim == 1 else a
+    right = b[:, None] if b.ndim == 1 else b
+    if left.shape[-1] != right.shape[-2]:
+        raise ValueError(f"matmul: shapes {a.shape} and {b.shape} do not align")
+    result = left[..., :, 0, None] * right[..., 0, None, :]
+    for k in range(1, left.shape[-1]):
+        result = result + left[..., :, k, None] * right[..., k, None, :]
+    if b.ndim == 1:
+        result = result[..., 0]
+    if a.ndim == 1:
+        result = result[..., 0, :] if b.ndim > 1 else result[..., 0]
+    return result
+
+
+def norm(vector: np.ndarray | Sequence[float]) -> float:
+    """Euclidean length of a vector, its squares summed in index order (see `matmul`)."""
+    return math.sqrt(sum(float(v) * float(v) for v in np.ravel(vector)))
+
+
+def invert_transform(matrix: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid 4 x 4 transform [R t; 0 1]: [R^T, -R^T t; 0 1]."""
+    matrix = np.asarray(matrix, dtype=float)
+    inverse = np.eye(4)
+    inverse[:3, :3] = matrix[:3, :3].T
+    inverse[:3, 3] = -matmul(matrix[:3, :3].T, matrix[:3, 3])
+    return inverse
+
+
+def cos_sin(angles: np.ndarray | Sequence[float]) -> np.ndarray:
+    """(N, 2) array of (cos, sin) of each angle, from libm (see `matmul`)."""
+    return np.array([[math.cos(a), math.sin(a)] for a in np.ravel(angles)]).reshape(-1, 2)
+
+
+# ---------------------------------------------------------------------------------------------
 # Rotations
 # ---------------------------------------------------------------------------------------------
 
@@ -54,12 +106,12 @@ def rot_z(angle: float) -> np.ndarray:
 
 def tilt_matrix(roll: float, pitch: float) -> np.ndarray:
     """R_tilt = Ry(pitch) . Rx(roll): the rotation of a view, or the tilt part of an orientation."""
-    return rot_y(pitch) @ rot_x(roll)
+    return matmul(rot_y(pitch), rot_x(roll))
 
 
 def euler_to_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
     """R = Ry(pitch) . Rx(roll) . Rz(yaw)."""
-    return tilt_matrix(roll, pitch) @ rot_z(yaw)
+    return matmul(tilt_matrix(roll, pitch), rot_z(yaw))
 
 
 def matrix_to_euler(matrix: np.ndarray) -> tuple[float, float, float]:
@@ -67,7 +119,7 @@ def matrix_to_euler(matrix: np.ndarray) -> tuple[float, float, float]:
     m = np.asarray(matrix, dtype=float)
     roll = -math.asin(float(np.clip(m[1, 2], -1.0, 1.0)))
     pitch = math.atan2(m[0, 2], m[2, 2])
-    yaw_part = tilt_matrix(roll, pitch).T @ m
+    yaw_part = matmul(tilt_matrix(roll, pitch).T, m)
     yaw = math.atan2(yaw_part[1, 0], yaw_part[0, 0])
     return roll, pitch, yaw
 
@@ -90,7 +142,7 @@ def matrix_to_quat(matrix: np.ndarray) -> np.ndarray:
 
 def rotation_angle(rot_a: np.ndarray, rot_b: np.ndarray) -> float:
     """Angle in radians of the relative rotation between two rotation matrices."""
-    cos = (np.trace(np.asarray(rot_a).T @ np.asarray(rot_b)) - 1.0) / 2.0
+    cos = (np.trace(matmul(np.asarray(rot_a).T, rot_b)) - 1.0) / 2.0
     return math.acos(float(np.clip(cos, -1.0, 1.0)))
 
 
@@ -121,12 +173,12 @@ def multiply_poses(*poses: Pose) -> Pose:
     """Compose poses left to right: multiply_poses(a, b) = a . b."""
     result = np.eye(4)
     for pose in poses:
-        result = result @ pose_to_matrix(pose)
+        result = matmul(result, pose_to_matrix(pose))
     return matrix_to_pose(result)
 
 
 def invert_pose(pose: Pose) -> Pose:
-    return matrix_to_pose(np.linalg.inv(pose_to_matrix(pose)))
+    return matrix_to_pose(invert_transform(pose_to_matrix(pose)))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -162,13 +214,13 @@ def pixel_to_world(
 def world_to_view(points: np.ndarray, view_rotation: np.ndarray) -> np.ndarray:
     """P' = R_v^T (P - c) + c for points (..., 3)."""
     points = np.asarray(points, dtype=float)
-    return (points - WORKSPACE_CENTER) @ np.asarray(view_rotation) + WORKSPACE_CENTER
+    return matmul(points - WORKSPACE_CENTER, view_rotation) + WORKSPACE_CENTER
 
 
 def view_to_world(points: np.ndarray, view_rotation: np.ndarray) -> np.ndarray:
     """P = c + R_v (P' - c) for points (..., 3)."""
     points = np.asarray(points, dtype=float)
-    return (points - WORKSPACE_CENTER) @ np.asarray(view_rotation).T + WORKSPACE_CENTER
+    return matmul(points - WORKSPACE_CENTER, np.asarray(view_rotation).T) + WORKSPACE_CENTER
 
 
 def world_to_view_pixel(

@@ -15,7 +15,7 @@ from nerf_transporter.data import episode as ep
 from nerf_transporter.experiments import pretrained
 from nerf_transporter.experiments.cells import CellFileError, load_record
 from nerf_transporter.pretrained import PRETRAINED_DIR
-from nerf_transporter.sim import fingerprint
+from nerf_transporter.sim import fingerprint, trace
 
 BLOCK = "sim/tasks/block_insertion.py"
 RESULTS = Path(__file__).resolve().parents[2] / "results"
@@ -89,6 +89,51 @@ def test_the_world_is_recorded_with_its_components():
     world = fingerprint.world()
     recorded = fingerprint.known_worlds()[world["fingerprint"]]
     assert recorded == {"format": world["format"], "components": world["components"]}
+
+
+def _moved_by_float_noise(committed: dict) -> dict:
+    """The committed trace with one settled number moved as an episode's contacts amplify the last
+    bits of its arithmetic (3 mm)."""
+    moved = json.loads(json.dumps(committed))
+    moved["episodes"]["stacking-kits/challenging"]["settled"][4][0] += 0.003
+    return moved
+
+
+def test_a_trace_recorded_as_float_noise_keeps_the_world_and_its_components(tmp_path):
+    root = _copy_package(tmp_path)
+    path = root / "sim" / "world_trace.json"
+    path.write_text(json.dumps(_moved_by_float_noise(fingerprint.committed_trace())))
+    moved = fingerprint.world_description(root)
+    assert fingerprint.world_changes(fingerprint.world(), moved) == [
+        "the physics and tasks (physics) changed"
+    ]
+    played = fingerprint.component_digests(root)["physics"]
+    recorded = fingerprint.world()["components"]["physics"]
+    with pytest.raises(ValueError, match="only with the reason"):
+        fingerprint.record_float_noise("physics", played, recorded, " ", root / "sim/worlds.json")
+    fingerprint.record_float_noise(
+        "physics", played, recorded, "summed in another order", root / "sim/worlds.json"
+    )
+    assert fingerprint.world_description(root) == fingerprint.world()
+    assert fingerprint.float_noise_equals(root)["physics"][played] == recorded
+
+
+def test_same_world_refuses_a_trace_that_differs_beyond_numbers(monkeypatch, capsys):
+    """Nothing is written: an asset or an outcome that changed is another world."""
+    committed = fingerprint.committed_trace()
+    trace_text, worlds_text = (
+        path.read_text() for path in (fingerprint.TRACE_FILE, fingerprint.WORLDS_FILE)
+    )
+    rebuilt = _moved_by_float_noise(committed)
+    rebuilt["episodes"]["stacking-kits/challenging"]["outcome"]["success"] = False
+    monkeypatch.setattr(trace, "world_trace", lambda: rebuilt)
+    assert trace.main(["--write", "--same-world", "summed in another order"]) == 1
+    assert "that is another world, written without --same-world" in capsys.readouterr().err
+    assert fingerprint.TRACE_FILE.read_text() == trace_text
+    assert fingerprint.WORLDS_FILE.read_text() == worlds_text
+    with pytest.raises(SystemExit):
+        trace.main(["--same-world", "summed in another order"])
+    assert "give --write too" in capsys.readouterr().err
 
 
 def test_the_source_hash_worlds_cells_datasets_and_policies_are_this_worlds(tmp_path):

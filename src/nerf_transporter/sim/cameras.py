@@ -57,11 +57,11 @@ def look_at(
     """OpenCV camera-to-world pose of a camera at `eye` looking at `target`, image up along `up`."""
     eye, target = np.asarray(eye, dtype=float), np.asarray(target, dtype=float)
     forward = target - eye
-    forward /= np.linalg.norm(forward)
+    forward /= geometry.norm(forward)
     right = np.cross(forward, np.asarray(up, dtype=float))
-    if np.linalg.norm(right) < 1e-9:
+    if geometry.norm(right) < 1e-9:
         raise ValueError("look_at: the viewing direction is parallel to `up`")
-    right /= np.linalg.norm(right)
+    right /= geometry.norm(right)
     down = np.cross(forward, right)
     pose = np.eye(4)
     pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, down, forward, eye
@@ -134,7 +134,7 @@ def _gl(matrix: np.ndarray) -> list[float]:
 def render(client, camera: Camera, depth: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """RGB uint8 [H, W, 3] and, if asked, depth in metres along the optical axis [H, W]."""
     height, width = camera.image_size
-    view = OPENGL_FROM_OPENCV @ np.linalg.inv(camera.cam_to_world)
+    view = geometry.matmul(OPENGL_FROM_OPENCV, geometry.invert_transform(camera.cam_to_world))
     _, _, rgba, depth_buffer, _ = client.getCameraImage(
         width,
         height,
@@ -198,9 +198,9 @@ def render_orthographic(
     eye = geometry.view_to_world(np.array([centre_x, 0.0, top + ORTHO_EYE_OFFSET]), rotation)
     # Camera frame (OpenGL): x right = -x', y up = -y', looking along -z'.
     camera_to_world = np.eye(4)
-    camera_to_world[:3, :3] = rotation @ np.diag([-1.0, -1.0, 1.0])
+    camera_to_world[:3, :3] = geometry.matmul(rotation, np.diag([-1.0, -1.0, 1.0]))
     camera_to_world[:3, 3] = eye
-    view = np.linalg.inv(camera_to_world)
+    view = geometry.invert_transform(camera_to_world)
     # Pixels are sampled at integer window coordinates from the bottom left (see _projection):
     # column k (before the flip) at x' = x0 + (cols - 1 - k) s, row m at y' = y0 + m s.
     left = centre_x - geometry.BOUNDS[0, 0] - (cols - 1) * pixel_size

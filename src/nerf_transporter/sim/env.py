@@ -91,7 +91,7 @@ def connect(render_mode: str | None = None) -> BulletClient:
             "not set); render_mode='rgb_array' returns frames without one"
         )
     offset = VIDEO_EYE - VIDEO_TARGET
-    distance = float(np.linalg.norm(offset))
+    distance = geometry.norm(offset)
     with native_output_silenced(stderr=False):
         client = BulletClient(connection_mode=pybullet.GUI)
         client.configureDebugVisualizer(pybullet.COV_ENABLE_GUI, 0)
@@ -312,7 +312,7 @@ class RavensEnv(gym.Env):
         movable = [body for body in bodies if self.is_dynamic(body)]
         for _ in range(int(round(SETTLE_LIMIT / TIME_STEP))):
             speeds = [self.client.getBaseVelocity(body)[0] for body in movable]
-            if all(np.linalg.norm(v) < SETTLED_SPEED for v in speeds):
+            if all(geometry.norm(v) < SETTLED_SPEED for v in speeds):
                 return
             self.step_simulation()
 

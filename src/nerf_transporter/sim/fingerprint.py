@@ -25,6 +25,13 @@ world's (`same_world`, `components_read`): a changed NeRF rig leaves the heightm
 and the state method's valid. A world recorded there keeps the fingerprint it is recorded under:
 `2b2aee17dfd72f31`, the fingerprint the source-hash scheme gave the world the trace was first
 written in, names that world still, so the cells, datasets and policies made in it stay its own.
+
+A trace played again may also differ from the committed one by float noise alone: the same
+constants, the same assets and outcomes, numbers moved in the last bits and amplified by an
+episode's contacts (the world's arithmetic made the same on every CPU did this once). Such a trace
+is written with `python -m nerf_transporter.sim.trace --write --same-world REASON`, which records
+in `sim/worlds.json` that the digest it gives a component is the committed one's
+(`same_within_float_noise`, with the reason), so the world keeps its name and components.
 """
 
 from __future__ import annotations
@@ -160,11 +167,43 @@ def known_worlds(root: Path = PACKAGE_ROOT) -> dict[str, dict[str, Any]]:
     return json.loads(path.read_text(encoding="utf-8"))["worlds"]
 
 
+def float_noise_equals(root: Path = PACKAGE_ROOT) -> dict[str, dict[str, str]]:
+    """Component -> {digest: the digest it is recorded as} of the traces `sim/worlds.json` records
+    as float noise of a committed one (`same_within_float_noise`)."""
+    path = root / WORLDS_FILE.relative_to(PACKAGE_ROOT)
+    found: dict[str, dict[str, str]] = {}
+    for entry in json.loads(path.read_text(encoding="utf-8")).get("same_within_float_noise", []):
+        found.setdefault(entry["component"], {})[entry["digest"]] = entry["same_as"]
+    return found
+
+
+def record_float_noise(
+    component: str, digest: str, same_as: str, reason: str, path: Path = WORLDS_FILE
+) -> None:
+    """Record in `sim/worlds.json` that `digest` of `component` is `same_as` within float noise."""
+    if component not in COMPONENTS:
+        raise ValueError(f"no world component {component!r}; the components are {list(COMPONENTS)}")
+    if not reason.strip():
+        raise ValueError("a digest is recorded as another's only with the reason it is the same")
+    worlds = json.loads(path.read_text(encoding="utf-8"))
+    entry = {"component": component, "digest": digest, "same_as": same_as, "why": reason.strip()}
+    entries = worlds.setdefault("same_within_float_noise", [])
+    if entry not in entries:
+        entries.append(entry)
+        write_json(path, worlds)
+
+
 def world_description(root: Path = PACKAGE_ROOT) -> dict[str, Any]:
-    """{"fingerprint", "format", "components": {component: digest}}, as stored with data: the
-    fingerprint is the one the world is recorded under in `sim/worlds.json`, else the hash of its
-    format and components."""
-    world = {"format": GENERATOR_FORMAT, "components": component_digests(root)}
+    """{"fingerprint", "format", "components": {component: digest}}, as stored with data: a
+    component's digest is the one `sim/worlds.json` records it as (`float_noise_equals`), the
+    fingerprint the one the world is recorded under there, else the hash of its format and
+    components."""
+    equals = float_noise_equals(root)
+    components = {
+        name: equals.get(name, {}).get(digest, digest)
+        for name, digest in component_digests(root).items()
+    }
+    world = {"format": GENERATOR_FORMAT, "components": components}
     recorded = [name for name, known in known_worlds(root).items() if known == world]
     return {"fingerprint": recorded[0] if recorded else _digest(world), **world}
 
@@ -261,8 +300,12 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(description, indent=2))
         return 0
     print(f"world {description['fingerprint']} (generator format {description['format']})")
+    played = component_digests()
     for name, digest in description["components"].items():
-        print(f"  {COMPONENTS[name]:<18} {name:<8} {digest}")
+        noise = f" (its trace hashes to {played[name]}: float noise of it)" * (
+            played[name] != digest
+        )
+        print(f"  {COMPONENTS[name]:<18} {name:<8} {digest}{noise}")
     return 0
 
 

@@ -56,7 +56,7 @@ def _solve(env: Simulation, pose: Pose, what: str, seed: np.ndarray | None = Non
 def move_joints(env: Simulation, target: np.ndarray) -> None:
     """Joint-space interpolation from the current joints to `target`."""
     start = env.robot.joint_positions()
-    count = max(1, int(np.ceil(np.linalg.norm(target - start) / JOINT_STEP)))
+    count = max(1, int(np.ceil(geometry.norm(target - start) / JOINT_STEP)))
     for k in range(1, count + 1):
         env.robot.drive(start + (target - start) * k / count)
         env.step_simulation()
@@ -70,7 +70,7 @@ def move_linear(env: Simulation, start: Pose, end: Pose, what: str, stop=None) -
         np.asarray(start[0], dtype=float),
         np.asarray(end[0], dtype=float),
     )
-    distance = float(np.linalg.norm(end_position - start_position))
+    distance = geometry.norm(end_position - start_position)
     waypoints = max(1, int(np.ceil(distance / IK_SPACING)))
     substeps = max(1, int(round(IK_SPACING / LINEAR_STEP)))
     previous = env.robot.joint_positions()
@@ -99,7 +99,7 @@ def pick_and_place(env: Simulation, pick: Pose, place: Pose) -> str | None:
 def _normalised(pose: Pose) -> Pose:
     position = np.asarray(pose[0], dtype=float).reshape(3)
     quat = np.asarray(pose[1], dtype=float).reshape(4)
-    norm = np.linalg.norm(quat)
+    norm = geometry.norm(quat)
     if not np.isfinite(norm) or norm < 1e-6 or not np.all(np.isfinite(position)):
         raise MotionFailure("invalid pose: zero or non-finite quaternion or position")
     return position, quat / norm

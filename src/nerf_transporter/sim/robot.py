@@ -107,17 +107,14 @@ def dh_frames(q: np.ndarray) -> list[np.ndarray]:
     """Base-to-frame transforms of DH frames 1..6 (frame 6 is the flange)."""
     frames, transform = [], np.eye(4)
     for i in range(6):
-        transform = transform @ _dh(q[i], i)
+        transform = geometry.matmul(transform, _dh(q[i], i))
         frames.append(transform)
     return frames
 
 
 def _inverse(transform: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid 4x4 transform."""
-    result = np.eye(4)
-    result[:3, :3] = transform[:3, :3].T
-    result[:3, 3] = -transform[:3, :3].T @ transform[:3, 3]
-    return result
+    """Inverse of a rigid 4x4 transform (`geometry.invert_transform`)."""
+    return geometry.invert_transform(transform)
 
 
 _FLANGE_TO_TIP = np.eye(4)
@@ -129,7 +126,7 @@ _TIP_TO_FLANGE = _inverse(_FLANGE_TO_TIP)
 def analytic_ik(flange: np.ndarray) -> list[np.ndarray]:
     """All (up to 8) closed-form solutions placing DH frame 6 at the 4x4 transform `flange`."""
     a2, a3, d4, d6 = DH_A[1], DH_A[2], DH_D[3], DH_D[5]
-    wrist = flange @ np.array([0.0, 0.0, -d6, 1.0])
+    wrist = geometry.matmul(flange, [0.0, 0.0, -d6, 1.0])
     radius = math.hypot(wrist[0], wrist[1])
     if radius < abs(d4):
         return []
@@ -151,7 +148,10 @@ def analytic_ik(flange: np.ndarray) -> list[np.ndarray]:
                     (-inverse[1, 0] * s1 + inverse[1, 1] * c1) / s5,
                     (inverse[0, 0] * s1 - inverse[0, 1] * c1) / s5,
                 )
-            t14 = _inverse(_dh(t1, 0)) @ flange @ _inverse(_dh(t5, 4) @ _dh(t6, 5))
+            t14 = geometry.matmul(
+                geometry.matmul(_inverse(_dh(t1, 0)), flange),
+                _inverse(geometry.matmul(_dh(t5, 4), _dh(t6, 5))),
+            )
             px, py = t14[0, 3], t14[1, 3]
             c3 = (px * px + py * py - a2 * a2 - a3 * a3) / (2 * a2 * a3)
             if abs(c3) > 1:
@@ -159,7 +159,7 @@ def analytic_ik(flange: np.ndarray) -> list[np.ndarray]:
             for sign3 in (1, -1):
                 t3 = sign3 * math.acos(c3)
                 t2 = math.atan2(py, px) - math.atan2(a3 * math.sin(t3), a2 + a3 * math.cos(t3))
-                t34 = _inverse(_dh(t2, 1) @ _dh(t3, 2)) @ t14
+                t34 = geometry.matmul(_inverse(geometry.matmul(_dh(t2, 1), _dh(t3, 2))), t14)
                 t4 = math.atan2(t34[1, 0], t34[0, 0])
                 solutions.append(np.array([t1, t2, t3, t4, t5, t6]))
     return solutions
@@ -228,7 +228,7 @@ class Robot:
         """Joint angles that put the suction tip at `pose` (closest to `seed`, default the current
         joints), or None when no solution keeps the arm above the table within its joint limits."""
         reference = self.joint_positions() if seed is None else np.asarray(seed, dtype=float)
-        flange = geometry.pose_to_matrix(pose) @ _TIP_TO_FLANGE
+        flange = geometry.matmul(geometry.pose_to_matrix(pose), _TIP_TO_FLANGE)
         candidates = [_nearest_in_limits(q, reference) for q in analytic_ik(flange)]
         candidates = [q for q in candidates if q is not None]
         candidates.sort(key=lambda q: float(np.abs(q - reference).sum()))

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull
 
+from nerf_transporter import geometry
 from nerf_transporter.sim.assets import RGBA, Box, Cylinder, Mesh, Part, write_obj, write_urdf
 
 # ---------------------------------------------------------------------------------------------
@@ -110,7 +111,7 @@ def symmetry_order(outline: np.ndarray, max_order: int = 64, tol: float = 1e-6) 
         rotation = np.array(
             [[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]]
         )
-        rotated = outline @ rotation.T
+        rotated = geometry.matmul(outline, rotation.T)
         distances = np.linalg.norm(rotated[:, None, :] - outline[None, :, :], axis=-1)
         if np.all(distances.min(axis=1) < tol):
             best = order
@@ -141,19 +142,19 @@ def fan_pieces(outline: np.ndarray) -> list[np.ndarray]:
 
 def regular_polygon(sides: int, radius: float, phase: float = 0.0) -> np.ndarray:
     angles = phase + 2 * math.pi * np.arange(sides) / sides
-    return radius * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    return radius * geometry.cos_sin(angles)
 
 
 def star_polygon(points: int, outer: float, inner: float) -> np.ndarray:
     angles = math.pi / 2 + math.pi * np.arange(2 * points) / points
     radii = np.where(np.arange(2 * points) % 2 == 0, outer, inner)
-    return radii[:, None] * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    return radii[:, None] * geometry.cos_sin(angles)
 
 
 def arms_polygon(angles_deg: list[float], lengths: list[float], half_width: float) -> np.ndarray:
     """Union of straight arms of equal width leaving the origin (plus, X, Y, T, L, V, cross)."""
     angles = np.radians(angles_deg)
-    directions = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    directions = geometry.cos_sin(angles)
     left = np.stack([-directions[:, 1], directions[:, 0]], axis=1)
     vertices = []
     for k in range(len(angles)):
@@ -162,10 +163,13 @@ def arms_polygon(angles_deg: list[float], lengths: list[float], half_width: floa
         nxt = (k + 1) % len(angles)
         # corner between the left side of arm k and the right side of the next arm
         matrix = np.stack([left[k], left[nxt]])
-        if abs(np.linalg.det(matrix)) < 1e-9:
+        determinant = matrix[0, 0] * matrix[1, 1] - matrix[0, 1] * matrix[1, 0]
+        if abs(determinant) < 1e-9:
             vertices.append(half_width * left[k])
-        else:
-            vertices.append(np.linalg.solve(matrix, [half_width, -half_width]))
+        else:  # Cramer's rule for matrix @ corner = (half_width, -half_width)
+            corner_x = half_width * matrix[1, 1] + half_width * matrix[0, 1]
+            corner_y = -half_width * matrix[0, 0] - half_width * matrix[1, 0]
+            vertices.append(np.array([corner_x, corner_y]) / determinant)
     return np.array(vertices)
 
 
@@ -194,14 +198,16 @@ class KitShape:
 def _heart(samples: int = 16) -> np.ndarray:
     t = np.linspace(0.0, 2 * math.pi, samples, endpoint=False)
     t = np.delete(t, [1, samples - 1])  # a wide notch at the top
-    x = 16 * np.sin(t) ** 3
-    y = 13 * np.cos(t) - 5 * np.cos(2 * t) - 2 * np.cos(3 * t) - np.cos(4 * t)
+    sin = geometry.cos_sin(t)[:, 1]
+    cos_t, cos_2t, cos_3t, cos_4t = (geometry.cos_sin(k * t)[:, 0] for k in (1, 2, 3, 4))
+    x = 16 * sin * sin * sin
+    y = 13 * cos_t - 5 * cos_2t - 2 * cos_3t - cos_4t
     return _centred(np.stack([x, y], axis=1) * (4.3 / 17.0), (0.0, -0.2))
 
 
 def _semicircle(radius: float = 4.4, samples: int = 16) -> np.ndarray:
     angles = np.linspace(0.0, math.pi, samples)
-    outline = radius * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    outline = radius * geometry.cos_sin(angles)
     return _centred(outline, (0.0, 4 * radius / (3 * math.pi)))
 
 
@@ -310,7 +316,7 @@ def hull_mesh(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     faces = remap[hull.simplices]
     centre = vertices.mean(axis=0)
     a, b, c = (vertices[faces[:, k]] for k in range(3))
-    outward = np.einsum("ij,ij->i", np.cross(b - a, c - a), a - centre) > 0
+    outward = (np.cross(b - a, c - a) * (a - centre)).sum(axis=1) > 0
     faces[~outward] = faces[~outward][:, ::-1]
     return vertices, faces
 

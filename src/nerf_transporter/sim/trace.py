@@ -17,7 +17,8 @@ fails there until the trace is written again:
 
     python -m nerf_transporter.sim.trace --write
 
-which also records the new world in `sim/worlds.json` (see `sim/fingerprint.py`).
+which also records the new world in `sim/worlds.json` (see `sim/fingerprint.py`); with
+`--same-world REASON` it records a trace that moved by float noise alone as the committed world's.
 """
 
 from __future__ import annotations
@@ -192,8 +193,10 @@ def world_trace() -> dict[str, Any]:
     return {"seed": SEED, "decimals": DECIMALS, "episodes": episodes, "renders": render_trace()}
 
 
-def differences(committed: Any, replayed: Any, where: str = "trace") -> list[str]:
-    """Where `replayed` differs from `committed`: numbers by more than `TOLERANCE`, anything else
+def differences(
+    committed: Any, replayed: Any, where: str = "trace", tolerance: float = TOLERANCE
+) -> list[str]:
+    """Where `replayed` differs from `committed`: numbers by more than `tolerance`, anything else
     at all; one line each."""
     if isinstance(committed, dict) and isinstance(replayed, dict):
         lines = []
@@ -203,7 +206,9 @@ def differences(committed: Any, replayed: Any, where: str = "trace") -> list[str
                     f"{where}.{key}: only in the {'replayed' if key in replayed else 'committed'} trace"
                 )
             else:
-                lines.extend(differences(committed[key], replayed[key], f"{where}.{key}"))
+                lines.extend(
+                    differences(committed[key], replayed[key], f"{where}.{key}", tolerance)
+                )
         return lines
     if isinstance(committed, list) and isinstance(replayed, list):
         if len(committed) != len(replayed):
@@ -211,7 +216,7 @@ def differences(committed: Any, replayed: Any, where: str = "trace") -> list[str
         return [
             line
             for index, (old, new) in enumerate(zip(committed, replayed, strict=True))
-            for line in differences(old, new, f"{where}[{index}]")
+            for line in differences(old, new, f"{where}[{index}]", tolerance)
         ]
     numbers = (int, float)
     if (
@@ -220,7 +225,7 @@ def differences(committed: Any, replayed: Any, where: str = "trace") -> list[str
         and not isinstance(committed, bool)
         and not isinstance(replayed, bool)
     ):
-        if math.isclose(committed, replayed, rel_tol=0.0, abs_tol=TOLERANCE):
+        if math.isclose(committed, replayed, rel_tol=0.0, abs_tol=tolerance):
             return []
     elif committed == replayed:
         return []
@@ -240,10 +245,50 @@ def main(argv: list[str] | None = None) -> int:
         help="write the trace played here to sim/world_trace.json and record the world it makes "
         "in sim/worlds.json (default: compare it with the committed one)",
     )
+    parser.add_argument(
+        "--same-world",
+        metavar="REASON",
+        help="with --write: the trace differs from the committed one by float noise alone (the "
+        "same constants' values, assets and outcomes; numbers moved by arithmetic done in "
+        "another order): record each component digest it changes as the committed one's, with "
+        "REASON, so the world keeps its name. Refused where anything but a number differs",
+    )
     args = parser.parse_args(argv)
+    if args.same_world is not None and not args.write:
+        parser.error("--same-world records a written trace: give --write too")
+    if args.same_world is not None and not args.same_world.strip():
+        parser.error("--same-world needs the reason the trace is the same world's")
     replayed = world_trace()
     if args.write:
+        committed_world = fingerprint.world_description()
+        if args.same_world is not None:
+            if committed_world["fingerprint"] not in fingerprint.known_worlds():
+                print(
+                    "refused: with the committed trace, this code's constants make no recorded "
+                    "world (sim/worlds.json): a changed constant is another world, written "
+                    "without --same-world",
+                    file=sys.stderr,
+                )
+                return 1
+            beyond_numbers = differences(
+                fingerprint.committed_trace(), replayed, tolerance=math.inf
+            )
+            if beyond_numbers:
+                print("\n".join(beyond_numbers), file=sys.stderr)
+                print(
+                    f"refused: the trace played here differs from {fingerprint.TRACE_FILE} in "
+                    f"{len(beyond_numbers)} entries that are not numbers (assets, outcomes, "
+                    "bodies): that is another world, written without --same-world",
+                    file=sys.stderr,
+                )
+                return 1
         write_json(fingerprint.TRACE_FILE, replayed, sort_keys=True)
+        if args.same_world is not None:
+            for name, digest in fingerprint.component_digests().items():
+                if digest != committed_world["components"][name]:
+                    fingerprint.record_float_noise(
+                        name, digest, committed_world["components"][name], args.same_world
+                    )
         world = fingerprint.record_world(fingerprint.world_description())
         print(f"wrote {fingerprint.TRACE_FILE}; the world is {world}")
         return 0

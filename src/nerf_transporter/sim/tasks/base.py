@@ -101,7 +101,7 @@ class MatchTolerance:
     def check(self, pose: Pose, target: Pose) -> dict:
         """Errors of `pose` against `target` and whether all are within the limits (strictly)."""
         offset = np.asarray(pose[0], dtype=float)[:2] - np.asarray(target[0], dtype=float)[:2]
-        position_error = float(np.linalg.norm(offset))
+        position_error = geometry.norm(offset)
         euler = np.array(geometry.quat_to_euler(pose[1]))
         target_euler = np.array(geometry.quat_to_euler(target[1]))
         yaw_error = _folded(float(euler[2] - target_euler[2]), self.yaw_period)
@@ -130,8 +130,10 @@ class Tolerance:
 
     def check(self, pose: Pose, target: Pose) -> dict:
         """Errors of `pose` relative to `target` and whether all are within tolerance."""
-        position_error = float(np.linalg.norm(np.asarray(pose[0]) - np.asarray(target[0])))
-        relative = geometry.quat_to_matrix(target[1]).T @ geometry.quat_to_matrix(pose[1])
+        position_error = geometry.norm(np.asarray(pose[0]) - np.asarray(target[0]))
+        relative = geometry.matmul(
+            geometry.quat_to_matrix(target[1]).T, geometry.quat_to_matrix(pose[1])
+        )
         roll, pitch, yaw = geometry.matrix_to_euler(relative)
         tilt_error = max(abs(roll), abs(pitch))
         yaw_error = _folded(yaw, self.yaw_period)
@@ -307,7 +309,7 @@ class Task(ABC):
             quat = geometry.matrix_to_quat(rotation)
             for _ in range(attempts):
                 xy = np.array([rng.uniform(*region[0]), rng.uniform(*region[1])])
-                if any(np.linalg.norm(xy - np.asarray(c)[:2]) < footprint + r for c, r in taken):
+                if any(geometry.norm(xy - np.asarray(c)[:2]) < footprint + r for c, r in taken):
                     continue
                 pose = (np.array([xy[0], xy[1], z]), quat)
                 if placeable(env, pose, reach_points):
@@ -320,7 +322,7 @@ def placeable(env: Scene, target: Pose, reach_points: np.ndarray) -> bool:
     any of `reach_points` (object frame); rotation about the approach axis is free (last joint)."""
     rotation = geometry.quat_to_matrix(target[1])
     for point in np.asarray(reach_points, dtype=float):
-        place = (np.asarray(target[0]) + rotation @ point, target[1])
+        place = (np.asarray(target[0]) + geometry.matmul(rotation, point), target[1])
         for pose in (place, offset_along_z(place, APPROACH)):
             if env.robot.solve_ik(pose, HOME_JOINTS) is None:
                 return False
@@ -362,7 +364,7 @@ def sample_free_xy(
     (x0, x1), (y0, y1) = region
     for _ in range(attempts):
         xy = np.array([rng.uniform(x0, x1), rng.uniform(y0, y1)])
-        if all(np.linalg.norm(xy - np.asarray(c)[:2]) >= radius + r for c, r in taken):
+        if all(geometry.norm(xy - np.asarray(c)[:2]) >= radius + r for c, r in taken):
             return xy
     raise RuntimeError(f"no free spot of radius {radius} m in region {region}")
 

@@ -91,7 +91,7 @@ def cube_urdf(color: str) -> str:
 
 def silhouette(pose: Pose, points: np.ndarray) -> tuple[np.ndarray, float]:
     """(centre, radius) of an x-y disc holding `points` [N, 3] (body frame) of a body at `pose`."""
-    world = np.asarray(points) @ geometry.quat_to_matrix(pose[1]).T + np.asarray(pose[0])
+    world = geometry.matmul(points, geometry.quat_to_matrix(pose[1]).T) + np.asarray(pose[0])
     low, high = world[:, :2].min(axis=0), world[:, :2].max(axis=0)
     centre = (low + high) / 2
     return centre, float(np.linalg.norm(world[:, :2] - centre, axis=1).max())
@@ -102,7 +102,7 @@ def pick_points() -> np.ndarray:
     a ring around the part of the face inside the suction margin, whatever the cube's yaw."""
     reach = (shapes.CUBE_SIZE / 2 - SUCTION_MARGIN) * math.sqrt(2)
     angles = 2 * math.pi * np.arange(8) / 8
-    ring = reach * np.column_stack([np.cos(angles), np.sin(angles), np.zeros(8)])
+    ring = reach * np.column_stack([geometry.cos_sin(angles), np.zeros(8)])
     return np.array([0.0, 0.0, shapes.CUBE_SIZE / 2]) + np.vstack([np.zeros(3), ring])
 
 
@@ -183,8 +183,10 @@ class PlaceRedInGreen(Task):
     def oracle_target(self, env: Scene, object_pose: Pose) -> Pose:
         """The cube seated in the nearest green bowl (the anchor's choice of bowl), keeping its yaw
         and taking the bowl's tilt (the cube is square and the cavity round)."""
-        distances = [np.linalg.norm(pose[0] - object_pose[0]) for pose in self.target_poses]
+        distances = [geometry.norm(pose[0] - object_pose[0]) for pose in self.target_poses]
         nearest = int(np.argmin(distances))
         roll, pitch, _ = geometry.quat_to_euler(self.target_poses[nearest][1])
-        rotation = geometry.tilt_matrix(roll, pitch) @ geometry.quat_to_matrix(object_pose[1])
+        rotation = geometry.matmul(
+            geometry.tilt_matrix(roll, pitch), geometry.quat_to_matrix(object_pose[1])
+        )
         return self.strict_target_poses[nearest][0], geometry.matrix_to_quat(rotation)

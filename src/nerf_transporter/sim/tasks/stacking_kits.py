@@ -82,7 +82,7 @@ class StackingKits(Task):
             [shape.outline, np.full(len(shape.outline), shapes.KIT_OBJECT_THICKNESS)]
         )
         position, quat = geometry.multiply_poses(copy_in_kit, stacked_offset())
-        reach_points = top @ geometry.quat_to_matrix(quat).T + position
+        reach_points = geometry.matmul(top, geometry.quat_to_matrix(quat).T) + position
         kit_pose = self.sample_target_pose(env, rng, KIT_REGION, KIT_ORIGIN_Z, reach_points)
         target = geometry.multiply_poses(kit_pose, copy_in_kit)
         copy = shapes.kit_object_urdf(shape, shapes.KIT_TARGET_COLOR)
