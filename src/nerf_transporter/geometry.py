@@ -10,7 +10,8 @@ Conventions (docs/conventions.md, "Frames and units" to "Views and the view grid
   P' = R_v^T (P - c) + c, and P' is mapped to pixels and height as in the top-down image.
 - Quaternions are (x, y, z, w), as PyBullet uses them. A pose is (xyz, quat_xyzw).
 
-The world's arithmetic gives the same bits on every CPU ("Arithmetic the same on every CPU" below).
+The world's arithmetic gives the same bits whatever BLAS kernel a CPU gets ("Arithmetic the same on
+every CPU" below).
 """
 
 from __future__ import annotations
