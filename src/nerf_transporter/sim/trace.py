@@ -260,8 +260,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--same-world needs the reason the trace is the same world's")
     replayed = world_trace()
     if args.write:
-        committed_world = fingerprint.world_description()
         if args.same_world is not None:
+            committed_world = fingerprint.world_description()  # the committed trace's world
             if committed_world["fingerprint"] not in fingerprint.known_worlds():
                 print(
                     "refused: with the committed trace, this code's constants make no recorded "
