@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import subprocess
 from pathlib import Path
@@ -27,6 +28,21 @@ def git_state() -> dict[str, Any]:
     commit = git("rev-parse", "HEAD")
     status = git("status", "--porcelain", "--untracked-files=no") if commit else None
     return {"commit": commit, "dirty": None if status is None else bool(status)}
+
+
+def code_identity() -> dict[str, Any]:
+    """`git_state`, and for a dirty checkout the hash of its changes to tracked files
+    ("diff_sha256"): two runs of the same identity ran the same code."""
+    state = git_state()
+    if state["dirty"]:
+        root = Path(__file__).resolve().parent
+        diff = subprocess.run(
+            ["git", "-C", str(root), "diff", "HEAD", "--no-ext-diff", "--binary"],
+            capture_output=True,
+            timeout=60,
+        ).stdout
+        state["diff_sha256"] = hashlib.sha256(diff).hexdigest()
+    return state
 
 
 def read_segments(run_dir: Path) -> list[dict[str, Any]]:

@@ -61,6 +61,8 @@ def test_every_checkpoint_of_a_run_is_evaluated_and_the_best_named(
         assert len(record["git"]["commit"]) == 40
         assert record["machine"]["fit"] == [fitted_on]
         assert record["machine"]["test"]["cpu"] and record["machine"]["test"]["gpu"] is None
+    # the records are written, so no episode journal is left to resume from
+    assert not list((run / "evaluation" / ".journals").glob("*.jsonl"))
     # evaluating again adds files beside the first ones: nothing is replaced
     assert cli_main(["evaluate-checkpoints", *argv, "--eval-workers", "1"]) == 0
     assert (run / "evaluation" / "step2-validation-normal-2.json").is_file()

@@ -521,10 +521,13 @@ class Evaluator:
         threads: int | None = None,
         video_dir: str | os.PathLike | None = None,
         video_episodes: int | None = None,
+        on_result: Callable[[EpisodeResult], None] | None = None,
     ) -> list[EpisodeResult]:
         """Episodes for `seeds`, results in seed order, the first `record_frames` with frames; an
         optional progress bar shows the successes (and errors) so far. With `video_dir`, the first
-        `video_episodes` (default: all) are recorded there as mp4s.
+        `video_episodes` (default: all) are recorded there as mp4s. `on_result` is called with each
+        result as its episode ends, in this process (an `evaluation.journal.EpisodeJournal`
+        keeps them there).
 
         With `workers` > 1 (and more than one seed) the episodes run in that many worker processes
         (`evaluation.workers`), each with `threads` torch threads (default: the available cores
@@ -544,6 +547,8 @@ class Evaluator:
                 errors += result.error is not None
                 bar.set_postfix(successes=successes, **({"errors": errors} if errors else {}))
                 bar.update(1)
+                if on_result is not None:
+                    on_result(result)
 
             videos = len(seeds) if video_episodes is None else video_episodes
             episodes = [

@@ -29,6 +29,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import json
+import logging
 import os
 import sys
 import time
@@ -44,13 +45,16 @@ from lightning.pytorch.callbacks import Callback
 from nerf_transporter.atomic import write_new_json
 from nerf_transporter.data.episode import file_sha256
 from nerf_transporter.device_info import describe_device
+from nerf_transporter.evaluation.journal import EpisodeJournal
 from nerf_transporter.evaluation.metrics import cell, summarize
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluators
 from nerf_transporter.evaluation.view_search import summary as view_search_summary
 from nerf_transporter.parallel import share_cores
 from nerf_transporter.pretrained import PRETRAINED_DIR
-from nerf_transporter.provenance import git_state
+from nerf_transporter.provenance import code_identity, git_state
 from nerf_transporter.sim.fingerprint import world_fingerprint
+
+log = logging.getLogger(__name__)
 
 # the strict check's figures logged by `trainer.test` (test/<name>), where the episodes have it
 STRICT_LOGGED = ("strict_success_rate", "strict_ci_low", "strict_ci_high")
@@ -148,6 +152,8 @@ def evaluate_policy(
     video_dir: str | os.PathLike | None = None,
     evaluators: Evaluators | None = None,
     gather: Callable[[list[dict[str, Any]]], list[dict[str, Any]]] | None = None,
+    journal_dir: str | os.PathLike | None = None,
+    keep: Callable[[dict[str, Any]], object] | None = None,
 ) -> dict[str, Any]:
     """The results record (`results_record`) of a policy on `seeds` of `split`: in the scene of its
     DataModule (`EvaluationSpec.from_datamodule`, with `setting`, `imagery`, `imagery_options`
@@ -156,7 +162,12 @@ def evaluate_policy(
     processes evaluating side by side, as DDP ranks do), every episode recorded into `video_dir`
     where given. `evaluators` keeps the Evaluator open for the caller's next policy (default: one
     of its own, closed after); `gather` pools the episodes of all DDP processes. `checkpoint` and
-    `global_step` name the policy in the record."""
+    `global_step` name the policy in the record.
+
+    With `journal_dir`, each finished episode is journalled there (`evaluation.journal`) and the
+    episodes an interrupted evaluation of the same identity journalled are taken instead of run
+    again (the record counts them in "resumed_episodes"; its "wall_s" is this call's); `keep`, called
+    with the record, writes it before the journal is removed."""
     start = time.perf_counter()
     spec = EvaluationSpec.from_datamodule(
         datamodule,
@@ -166,18 +177,28 @@ def evaluate_policy(
         imagery_options=imagery_options,
         cache_dir=cache_dir,
     )
-    workers, threads = share_cores(len(seeds), workers, processes)
+    journal = None
+    if journal_dir is not None:
+        journal = EpisodeJournal(journal_dir, journal_identity(method, spec, split, checkpoint))
+    resumed = journal.finished(seeds) if journal is not None else {}
+    if resumed:
+        log.info(
+            "%s: %d of %d episodes resumed from %s", desc, len(resumed), len(seeds), journal.path
+        )
+    to_run = [seed for seed in seeds if seed not in resumed]
+    workers, threads = share_cores(len(to_run), workers, processes)
     with contextlib.nullcontext(evaluators) if evaluators is not None else Evaluators() as kept:
         episodes = kept.get(spec).run(
             method,
-            seeds,
+            to_run,
             progress=progress,
             desc=desc,
             workers=workers,
             threads=threads,
             video_dir=video_dir,
+            on_result=journal.record if journal is not None else None,
         )
-    results = [episode.to_json() for episode in episodes]
+    results = [episode.to_json() for episode in [*resumed.values(), *episodes]]
     record = results_record(
         gather(results) if gather else results,
         method=method,
@@ -188,7 +209,30 @@ def evaluate_policy(
         global_step=global_step,
         wall_s=time.perf_counter() - start,
     )
-    return record | ({"imagery_options": dict(imagery_options)} if imagery_options else {})
+    record |= {"imagery_options": dict(imagery_options)} if imagery_options else {}
+    record |= {"resumed_episodes": len(resumed)} if resumed else {}
+    if keep is not None:
+        keep(record)
+    if journal is not None:
+        journal.remove()
+    return record
+
+
+def journal_identity(
+    method: torch.nn.Module, spec: EvaluationSpec, split: str, checkpoint: str | None
+) -> dict[str, Any]:
+    """What an evaluation's episodes depend on besides their seeds (`evaluation.journal`): the
+    checkpoint's bytes, the split, the scene with its imagery key (world fingerprint included), the
+    policy's test-time options and the code."""
+    options = {key: getattr(method, key) for key in getattr(method, "test_time_options", ())}
+    return {
+        "checkpoint_sha256": file_sha256(checkpoint) if checkpoint else None,
+        "split": split,
+        "scene": {"task": spec.task, "setting": spec.setting, "imagery": spec.imagery},
+        "imagery_key": spec.imagery_key(),
+        "test_time_options": options,
+        "code": code_identity(),
+    }
 
 
 def checkpoint_step(path: str | os.PathLike) -> int:

@@ -16,6 +16,7 @@ whose `evaluation/` (or `--video` folder) cannot be written, before the first ep
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import logging
 import math
@@ -43,6 +44,8 @@ log = logging.getLogger(__name__)
 
 # the hyper-parameters a checkpoint may hold: the method's (what `lightning --ckpt_path` reads) and
 # the DataModule's
+# under a run's evaluation folder: the episodes of evaluations under way (`evaluation.journal`)
+JOURNALS = ".journals"
 HYPER_PARAMETER_KEYS = ("hyper_parameters", "datamodule_hyper_parameters")
 # the instantiator LightningCLI stores beside a class path (the only one a checkpoint may name)
 LIGHTNING_INSTANTIATOR = "lightning.pytorch.cli.instantiate_module"
@@ -283,7 +286,9 @@ def evaluate_checkpoints(
     Before the first episode: a checkpoint naming other classes than this package's is refused
     (UntrustedCheckpointError), and the records' folder and `video_dir` must be writable
     (`atomic.UnwritableError`). Each record names the machines the run was fitted on
-    (`machine.fit`) beside its own commit and test machine (`results_record`). A checkpoint that
+    (`machine.fit`) beside its own commit and test machine (`results_record`). Each checkpoint's
+    finished episodes are journalled under `<run>/evaluation/.journals/` until its record is
+    written, so an interrupted evaluation resumes (`evaluation.journal`). A checkpoint that
     cannot be loaded is skipped with a warning; NoLoadableCheckpointError, naming each with its
     reason, where none could be."""
     checkpoints = checkpoint_steps(run_dir) if only is None else chosen_checkpoints(run_dir, only)
@@ -300,6 +305,9 @@ def evaluate_checkpoints(
     # the machines the run was fitted on (run-cell's fits; none recorded for a plain `lightning
     # fit`), beside the record's own (the one testing it)
     fitted_on = [segment["machine"] for segment in read_segments(run_dir)]
+    # records are named with what was asked beyond the training's: imagery, view choice, options
+    record_suffix = "".join(f"-{choice}" for choice in (imagery, view_choice) if choice)
+    record_suffix += imagery_options_suffix(imagery_options)
     records, unloadable = [], []
     with Evaluators() as evaluators:
         for step, path in checkpoints:
@@ -325,13 +333,10 @@ def evaluate_checkpoints(
                 desc=path.name,
                 video_dir=video_dir / path.stem if video_dir else None,
                 evaluators=evaluators,
-            )
-            record["machine"] = {"fit": fitted_on, **record["machine"]}
-            # named with what was asked beyond the training's: imagery, view choice, options
-            suffix = "".join(f"-{choice}" for choice in (imagery, view_choice) if choice)
-            suffix += imagery_options_suffix(imagery_options)
-            write_new_json(
-                run_dir / "evaluation", f"{path.stem}-{split}-{record['setting']}{suffix}", record
+                journal_dir=run_dir / "evaluation" / JOURNALS,
+                keep=functools.partial(
+                    keep_record, run_dir, path, split, fitted_on, suffix=record_suffix
+                ),
             )
             records.append(record)
     if not records:
@@ -340,6 +345,22 @@ def evaluate_checkpoints(
             "evaluated: " + "; ".join(unloadable)
         )
     return records
+
+
+def keep_record(
+    run_dir: Path,
+    checkpoint: Path,
+    split: str,
+    fitted_on: list[dict[str, Any]],
+    record: dict[str, Any],
+    *,
+    suffix: str,
+) -> None:
+    """Write a checkpoint's evaluation record, naming the machines its run was fitted on, as
+    `<run>/evaluation/<checkpoint stem>-<split>-<setting><suffix>.json` (never replacing one)."""
+    record["machine"] = {"fit": fitted_on, **record["machine"]}
+    stem = f"{checkpoint.stem}-{split}-{record['setting']}{suffix}"
+    write_new_json(run_dir / "evaluation", stem, record)
 
 
 def imagery_options_suffix(imagery_options: dict[str, Any] | None) -> str:
@@ -361,7 +382,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="nerf-transporter evaluate-checkpoints",
         description="Closed-loop success of every checkpoint of a run (e.g. "
-        "logs/block-insertion/mira/version_0) on validation seeds, to pick the one to test.",
+        "logs/block-insertion/mira/version_0) on validation seeds, to pick the one to test. "
+        "Interrupted, the same command resumes from the episodes already finished.",
         formatter_class=HelpFormatter,
     )
     parser.add_argument("run_dir", type=Path, help="a run's log directory (searched for *.ckpt)")

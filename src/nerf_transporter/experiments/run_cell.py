@@ -40,7 +40,8 @@ of its own that `--force` resumes until the cell is written from it (so an inter
 continues where it stopped, in a later session too). One command at a time fits and validates a protocol, and one at a time tests it in a setting: each holds a lock in
 the protocol's folder, and a second one exits naming the first (so a fit's two tests may run side
 by side once it is validated). Before anything runs, the folders it will write (fit runs,
-results, the imagery cache) are checked writable. A test with erred episodes writes no cell (its
+results, the imagery cache) are checked writable. An interrupted test resumes from the episodes it
+finished (`evaluation.journal`, through `evaluate_checkpoints`). A test with erred episodes writes no cell (its
 record stays in the run's `evaluation/`) and exits 1; a finished test whose cell could not be
 written is taken from there by the next run instead of testing again. `--fit-only` runs only the
 fit, without the closed-loop validation callback (a GPU machine without PyBullet); the same command
@@ -981,6 +982,8 @@ def _test(
         "lr": protocol["lr"],
         "train_wall_s": train_wall_s(run_dir),
         "test_wall_s": test_wall_s,
+        # episodes an interrupted test had finished: test_wall_s is the rest's
+        **({"test_resumed_episodes": n} if (n := record.get("resumed_episodes")) else {}),
         "machine": {
             "fit": [segment["machine"] for segment in segments],
             "test": describe_device(device),
