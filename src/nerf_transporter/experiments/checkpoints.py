@@ -42,10 +42,10 @@ from nerf_transporter.splits import split_seed
 log = logging.getLogger(__name__)
 
 
-# the hyper-parameters a checkpoint may hold: the method's (what `lightning --ckpt_path` reads) and
-# the DataModule's
 # under a run's evaluation folder: the episodes of evaluations under way (`evaluation.journal`)
 JOURNALS = ".journals"
+# the hyper-parameters a checkpoint may hold: the method's (what `lightning --ckpt_path` reads) and
+# the DataModule's
 HYPER_PARAMETER_KEYS = ("hyper_parameters", "datamodule_hyper_parameters")
 # the instantiator LightningCLI stores beside a class path (the only one a checkpoint may name)
 LIGHTNING_INSTANTIATOR = "lightning.pytorch.cli.instantiate_module"
