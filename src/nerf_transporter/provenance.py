@@ -11,22 +11,23 @@ from typing import Any
 SEGMENTS = "fit-segments.json"  # in a run folder: one entry per fit started there
 
 
+def _git(*args: str) -> str | None:
+    """A git command's output in the package's checkout (stripped); None where it fails."""
+    root = Path(__file__).resolve().parent
+    try:
+        result = subprocess.run(
+            ["git", "-C", str(root), *args], capture_output=True, text=True, timeout=60
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return result.stdout.strip() if result.returncode == 0 else None
+
+
 def git_state() -> dict[str, Any]:
     """{"commit": HEAD of the package's checkout, "dirty": tracked files changed}; None each
     outside a git checkout."""
-    root = Path(__file__).resolve().parent
-
-    def git(*args: str) -> str | None:
-        try:
-            result = subprocess.run(
-                ["git", "-C", str(root), *args], capture_output=True, text=True, timeout=30
-            )
-        except (OSError, subprocess.SubprocessError):
-            return None
-        return result.stdout.strip() if result.returncode == 0 else None
-
-    commit = git("rev-parse", "HEAD")
-    status = git("status", "--porcelain", "--untracked-files=no") if commit else None
+    commit = _git("rev-parse", "HEAD")
+    status = _git("status", "--porcelain", "--untracked-files=no") if commit else None
     return {"commit": commit, "dirty": None if status is None else bool(status)}
 
 
@@ -35,13 +36,8 @@ def code_identity() -> dict[str, Any]:
     ("diff_sha256"): two runs of the same identity ran the same code."""
     state = git_state()
     if state["dirty"]:
-        root = Path(__file__).resolve().parent
-        diff = subprocess.run(
-            ["git", "-C", str(root), "diff", "HEAD", "--no-ext-diff", "--binary"],
-            capture_output=True,
-            timeout=60,
-        ).stdout
-        state["diff_sha256"] = hashlib.sha256(diff).hexdigest()
+        diff = _git("diff", "HEAD", "--no-ext-diff", "--binary") or ""
+        state["diff_sha256"] = hashlib.sha256(diff.encode()).hexdigest()
     return state
 
 

@@ -102,7 +102,7 @@ def results_record(
     """
     results = sorted(results, key=lambda result: result["seed"])
     view_search = view_search_summary([result.get("view_search") for result in results])
-    options = {key: getattr(method, key) for key in getattr(method, "test_time_options", ())}
+    options = policy_test_time_options(method)
     return {
         "method": method_name(method),
         "task": spec.task,
@@ -125,6 +125,11 @@ def results_record(
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "episode_results": results,
     }
+
+
+def policy_test_time_options(method: Any) -> dict[str, Any]:
+    """A policy's test-time options and their values (`Method.test_time_options`; {} for none)."""
+    return {key: getattr(method, key) for key in getattr(method, "test_time_options", ())}
 
 
 def _device_of(method: Any) -> torch.device:
@@ -224,7 +229,7 @@ def journal_identity(
     """What an evaluation's episodes depend on besides their seeds (`evaluation.journal`): the
     checkpoint's bytes, the split, the scene with its imagery key (world fingerprint included), the
     policy's test-time options and the code."""
-    options = {key: getattr(method, key) for key in getattr(method, "test_time_options", ())}
+    options = policy_test_time_options(method)
     return {
         "checkpoint_sha256": file_sha256(checkpoint) if checkpoint else None,
         "split": split,
