@@ -18,9 +18,10 @@ before the robot moves. A failed episode falls in one class:
 - the rollout's own reason where the robot failed in motion (a pose unreachable, a timeout, a pick
   that touched nothing).
 
-Apart from its class, a failure whose pick lies on a corner pixel of the top-down image is
-counted (`picks on the image's corner`): a learnt pick that prefers the image's corner to every
-object, whatever its class then (docs/failures.md, "Picks on the image's corner").
+Apart from its class, a failure whose pick lies on the empty table (the top-down pixel under the
+pick shows the table) is counted, and among them those on a corner pixel of the image (`picks on
+the empty table (on the image's corner)`): a learnt pick that found no object it scored above the
+table, whatever its class then (docs/failures.md, "Picks on the image's corner").
 Erred episodes (not counted in a cell's rate) are counted apart. Successes whose aim was off count
 too: how often the world forgives an aim (block-insertion's flat placements, docs/six_dof.md).
 A second table gives success against the tilt of the target aimed at (its normal from the
@@ -147,7 +148,7 @@ def on_image_corner(pixel: tuple[int, int], shape: tuple[int, int]) -> bool:
 
 def diagnose_episode(env: RavensEnv, episode: Mapping[str, Any]) -> dict[str, Any]:
     """One recorded episode replayed in `env` (of its task and setting) up to its action."""
-    picked_object, aimed, target_tilt, corner = None, None, None, False
+    picked_object, aimed, target_tilt, corner, on_table = None, None, None, False, False
     if episode.get("action"):
         action = {key: _pose(values) for key, values in episode["action"].items()}
         env.reset(seed=episode["seed"])
@@ -156,6 +157,7 @@ def diagnose_episode(env: RavensEnv, episode: Mapping[str, Any]) -> dict[str, An
         corner = on_image_corner((row, col), ids.shape)
         inside = geometry.pixel_inside_image((row, col), ids.shape)
         picked_object = bool(inside and ids[row, col] == env.task.object_id)
+        on_table = bool(inside and ids[row, col] == env.table_id)
         aimed = aim(env.task, env.task.object_pose(env), action)
         target = env.task.target_poses[aimed["target_index"]]
         normal_z = geometry.quat_to_matrix(target[1])[2, 2]
@@ -165,6 +167,7 @@ def diagnose_episode(env: RavensEnv, episode: Mapping[str, Any]) -> dict[str, An
         "class": classify(episode, picked_object, aimed),
         "picked_object": picked_object,
         "pick_on_image_corner": corner,
+        "pick_on_empty_table": on_table,
         "aim": aimed,
         "target_tilt_deg": target_tilt,
         "ended_position_error": (episode.get("pose_error") or {}).get("position_error"),
@@ -279,6 +282,7 @@ def summary(record: Mapping[str, Any], diagnoses: list[dict[str, Any]]) -> dict[
         "classes": dict(classes),
         "aimed_off_missed": {part: missed[part] for part in POSE_PARTS},
         "successes_aimed_off": sum(1 for d in successes if d["aim"] and d["aim"]["missed"]),
+        "failed_picks_on_empty_table": sum(1 for d in failures if d["pick_on_empty_table"]),
         "failed_picks_on_image_corner": sum(1 for d in failures if d["pick_on_image_corner"]),
         "median_aim_error": {
             "successes": median_aim_errors(successes),
@@ -406,7 +410,7 @@ def summary_table(summaries: list[dict[str, Any]]) -> tuple[list[str], list[list
         "aimed off: position / tilt / yaw missed",
         "aimed within tolerance (ended > 5 cm away)",
         "failed in motion",
-        "picks on the image's corner",
+        "picks on the empty table (on the image's corner)",
         "erred",
         "median aim error, successes (mm / deg / deg)",
         "median aim error, failures",
@@ -430,7 +434,7 @@ def summary_table(summaries: list[dict[str, Any]]) -> tuple[list[str], list[list
                 f"{classes.get(AIMED_WITHIN_TOLERANCE, 0)} "
                 f"({entry['aimed_within_tolerance_ended_away']})",
                 motion_text or "0",
-                str(entry["failed_picks_on_image_corner"]),
+                f"{entry['failed_picks_on_empty_table']} ({entry['failed_picks_on_image_corner']})",
                 str(classes.get("erred", 0)),
                 _numbers_text(entry["median_aim_error"]["successes"]),
                 _numbers_text(entry["median_aim_error"]["failures"]),
