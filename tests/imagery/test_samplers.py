@@ -110,8 +110,9 @@ def test_rendering_matches_a_dense_reference():
     occupancy = OccupancyGrid((10, 20, 7))
     settings = MarchSettings(SEGMENT, 4, weight_threshold=0.0)
     colour, depth = render_rays(field, floor, occupancy, rays, settings)
+    _, median = render_rays(field, floor, occupancy, rays, settings, depth="median")
     samples = occupied_samples(rays, occupancy, SEGMENT, 4)
-    expected_colour, expected_depth = [], []
+    expected_colour, expected_depth, expected_median = [], [], []
     with torch.no_grad():
         for r in range(len(rays)):
             t = samples.t[samples.ray == r]
@@ -125,8 +126,17 @@ def test_rendering_matches_a_dense_reference():
                 (weights[:, None] * field.colour(points)).sum(0) + left * floor(hit[None])[0]
             )
             expected_depth.append((weights * t).sum() + left * rays.floor[r])
+            # the median: the first sample whose accumulated weight reaches one half, else the floor
+            reached = torch.nonzero(torch.cumsum(weights, 0) >= 0.5)
+            expected_median.append(t[reached[0, 0]] if len(reached) else rays.floor[r])
     assert torch.allclose(colour, torch.stack(expected_colour), atol=1e-5)
     assert torch.allclose(depth, torch.stack(expected_depth), atol=1e-5)
+    expected_median = torch.stack(expected_median)
+    assert torch.equal(median, expected_median)
+    # this random field has rays of each kind: the median on a sample, and on the floor
+    assert 0 < int((expected_median == rays.floor).sum()) < len(rays)
+    with pytest.raises(ValueError, match="unknown depth estimate 'mode'"):
+        render_rays(field, floor, occupancy, rays, settings, depth="mode")
 
 
 @pytest.mark.parametrize(("device", "expected"), [("cpu", 1 << 16), ("cuda", 1 << 19)])
@@ -135,3 +145,9 @@ def test_render_batch_is_chosen_per_device(device, expected):
     assert ImageryConfig(render_batch=1000).render_rays_per_call(torch.device(device)) == 1000
     with pytest.raises(ValueError, match="render_batch"):
         ImageryConfig(render_batch=-1)
+
+
+def test_an_unknown_depth_estimate_is_refused_by_the_config():
+    assert ImageryConfig(depth="median").depth == "median"
+    with pytest.raises(ValueError, match="unknown depth 'mode'"):
+        ImageryConfig(depth="mode")

@@ -26,7 +26,12 @@ from nerf_transporter.imagery.rays import (
     orthographic_rays,
     perspective_rays,
 )
-from nerf_transporter.imagery.render import MarchSettings, render_rays, render_rays_train
+from nerf_transporter.imagery.render import (
+    DEPTH_ESTIMATES,
+    MarchSettings,
+    render_rays,
+    render_rays_train,
+)
 from nerf_transporter.imagery.samplers import OccupancyGrid
 
 FIELD_TYPES = ("dense", "hash")
@@ -85,6 +90,10 @@ class ImageryConfig:
     # a white or pink disk, are driven out of the field before their colour is, and left painted on
     # the floor (docs/imagery.md, "The default imagery")
     colour_init: str = "table"
+    # the rendered views' height: "expected" (the rays' mean termination distance) or "median"
+    # (where a ray's accumulated opacity reaches one half; `render.median_depth`). Rendering only:
+    # the fit is the same either way
+    depth: str = "expected"
     final_learning_rate_factor: float = 0.1  # exponential decay of the learning rate to this factor
     pixel_size: float = geometry.PIXEL_SIZE  # of the rendered orthographic views
     render_batch: int = (
@@ -96,6 +105,8 @@ class ImageryConfig:
     def __post_init__(self) -> None:
         if self.field not in FIELD_TYPES:
             raise ValueError(f"unknown field type {self.field!r}; expected one of {FIELD_TYPES}")
+        if self.depth not in DEPTH_ESTIMATES:
+            raise ValueError(f"unknown depth {self.depth!r}; expected one of {DEPTH_ESTIMATES}")
         if self.colour_init not in COLOUR_INITS:
             raise ValueError(
                 f"unknown colour_init {self.colour_init!r}; expected one of {COLOUR_INITS}"
@@ -143,8 +154,10 @@ class FittedScene(nn.Module):
     def device(self) -> torch.device:
         return self.floor.image.device
 
-    def render(self, rays: Rays, settings: MarchSettings) -> tuple[torch.Tensor, torch.Tensor]:
-        return render_rays(self.field, self.floor, self.occupancy, rays, settings)
+    def render(
+        self, rays: Rays, settings: MarchSettings, depth: str = "expected"
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        return render_rays(self.field, self.floor, self.occupancy, rays, settings, depth)
 
 
 def resolve_device(name: str = "auto") -> torch.device:
@@ -376,7 +389,7 @@ def render_views(
     batch = config.render_rays_per_call(scene.device)
     colour_parts, height_parts = [], []
     for start in range(0, len(rays), batch):
-        colour, depth = scene.render(rays[start : start + batch], settings)
+        colour, depth = scene.render(rays[start : start + batch], settings, config.depth)
         colour_parts.append(colour.clamp(0.0, 1.0).mul(255.0).round().to(torch.uint8))
         height_parts.append(depth_to_height(depth))
     colours = torch.cat(colour_parts).view(len(views), rows, cols, 3).cpu().numpy()

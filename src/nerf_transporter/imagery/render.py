@@ -3,8 +3,11 @@
 Each ray composites the field's samples in its occupied segments; whatever transmittance is left
 where the ray reaches the plane z = 0 is given to the floor map there. Inside the box that is the
 box's bottom face; a ray that leaves through a side wall (tilted views near the border) continues
-to the same plane, whose colour is the floor map clamped at its border. The expected termination
-distance (floor included) is the depth; for orthographic rays it converts to height.
+to the same plane, whose colour is the floor map clamped at its border. The depth is the expected
+termination distance (floor included) or, where asked, the median one: where the ray's accumulated
+opacity first reaches one half, so that a faint layer in front of a surface (a floater, a haze over
+a textureless hollow) or a ray grazing an edge does not pull the depth between two surfaces. For
+orthographic rays it converts to height.
 
 All samples of a batch of rays are evaluated in one pass, packed ray after ray: the fitted
 surfaces are rarely opaque enough for early ray termination to pay for marching in rounds, and the
@@ -84,6 +87,22 @@ def render_rays_train(
     return _composite(field, floor, rays, samples, settings)
 
 
+DEPTH_ESTIMATES = ("expected", "median")
+
+
+def median_depth(output: RayOutput, rays: Rays) -> torch.Tensor:
+    """[R] the distance of each ray's first sample where its accumulated weight reaches one half,
+    or the floor's where the samples' weights sum to less (the floor then holds the median)."""
+    samples, weights = output.samples, output.weights
+    accumulated = samples.exclusive_sums(weights) + weights
+    before = samples.ray_sums((accumulated < 0.5).to(weights.dtype)).round().long()
+    counts = samples.bounds[1:] - samples.bounds[:-1]
+    reached = before < counts
+    index = (samples.bounds[:-1] + before).clamp(max=max(len(samples) - 1, 0))
+    sample_t = samples.t[index] if len(samples) else rays.floor
+    return torch.where(reached, sample_t, rays.floor)
+
+
 @torch.no_grad()
 def render_rays(
     field: RadianceField,
@@ -91,10 +110,16 @@ def render_rays(
     occupancy: OccupancyGrid,
     rays: Rays,
     settings: MarchSettings,
+    depth: str = "expected",
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Deterministic rendering at the stratum centres -> (colour [R, 3], depth [R])."""
+    """Deterministic rendering at the stratum centres -> (colour [R, 3], depth [R]); `depth` is
+    "expected" (the weights' mean distance) or "median" (`median_depth`)."""
+    if depth not in DEPTH_ESTIMATES:
+        raise ValueError(f"unknown depth estimate {depth!r}; expected one of {DEPTH_ESTIMATES}")
     samples = occupied_samples(
         rays, occupancy, settings.segment_length, settings.samples_per_segment
     )
     output = _composite(field, floor, rays, samples, settings)
+    if depth == "median":
+        return output.colour, median_depth(output, rays)
     return output.colour, output.depth
