@@ -4,9 +4,9 @@ For each test scene of a cell, the checkpoint's attention logits on the top-down
 imagery the cell was tested on (read from the evaluation's imagery cache, never refitted here) and
 on the simulator's own top-down render of the same scene: the highest logit over the object's
 pixels and over the table's (the simulator's segmentation). A pick lands on the empty table
-exactly where no object pixel scores above the table, so the rows split the scenes by the cell's
-outcome (picks that touched nothing, the others) and count the scenes where the object scores
-below the table. The simulator's column tells a network that never learnt the object apart from
+exactly where no object pixel scores above the table, so the rows split the scenes by where the
+cell's recorded pick lay (on the empty table, as `failures` counts them, or not) and count the
+scenes where the object scores below the table. The simulator's column tells a network that never learnt the object apart from
 one that the imagery's departures tip over (docs/failures.md, "stacking-kits' mira refit on the
 default imagery").
 
@@ -36,8 +36,6 @@ from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpe
 from nerf_transporter.experiments.checkpoints import load_checkpoint
 from nerf_transporter.sim import make_env
 
-MISSED_PICK = "pick: the suction tip touched no movable object"
-
 
 def highest_scores(
     model: torch.nn.Module, colour: np.ndarray, height: np.ndarray, ids: np.ndarray, env
@@ -54,14 +52,14 @@ def highest_scores(
 def scene_scores(
     cell: dict, model: torch.nn.Module, spec: EvaluationSpec, cache: ImageryCache
 ) -> list[dict]:
-    """Per test episode of the cell: its seed, whether its pick touched nothing, and the
-    (object, table) highest logits on the cell's imagery and on the simulator's render."""
+    """Per test episode of the cell: its seed, whether its recorded pick lay on the empty table,
+    and the (object, table) highest logits on the cell's imagery and on the simulator's render."""
     env = make_env(cell["task"], cell["setting"])
     key = spec.imagery_key()
     scores = []
     try:
         for episode in cell["episode_results"]:
-            if episode.get("error"):
+            if episode.get("error") or not episode.get("action"):
                 continue
             seed = episode["seed"]
             imagery = cache.load(cell["task"], cell["setting"], seed, key)
@@ -75,10 +73,14 @@ def scene_scores(
             env.reset(seed=seed)
             colour, height = env.render_orthographic(0.0, 0.0)
             ids, _ = env.render_segmentation_top_down()
+            row, col = np.round(geometry.world_to_pixel(episode["action"]["pick"][:3])).astype(int)
+            on_table = geometry.pixel_inside_image((row, col), ids.shape) and (
+                ids[row, col] == env.table_id
+            )
             scores.append(
                 {
                     "seed": seed,
-                    "missed_pick": episode.get("failure") == MISSED_PICK,
+                    "pick_on_table": bool(on_table),
                     "imagery": highest_scores(
                         model, imagery["colour"][top], imagery["height"][top], ids, env
                     ),
@@ -93,8 +95,8 @@ def scene_scores(
 def summary_rows(scores: list[dict]) -> list[str]:
     """Markdown rows: per group of scenes and imagery, the medians and the object-below counts."""
     rows = []
-    for missed, group in ((True, "picks that touched nothing"), (False, "the other scenes")):
-        chosen = [s for s in scores if s["missed_pick"] == missed]
+    for on_table, group in ((True, "picks on the empty table"), (False, "the other scenes")):
+        chosen = [s for s in scores if s["pick_on_table"] == on_table]
         for source in ("imagery", "simulator"):
             pairs = [s[source] for s in chosen]
             if not pairs:
