@@ -532,7 +532,8 @@ def main(argv: list[str] | None = None) -> int:
         "each episode's scene is "
         "reset from its seed and its recorded action judged before the robot moves (picked another "
         "body, aimed off in position / tilt / yaw, aimed within tolerance but did not settle, "
-        "failed in motion). Needs the world the cells were measured in.",
+        "failed in motion), and the failed picks that lay on the empty table counted apart. Needs "
+        "the world the cells were measured in.",
         formatter_class=HelpFormatter,
     )
     parser.add_argument(
