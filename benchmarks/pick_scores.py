@@ -34,6 +34,7 @@ from nerf_transporter.data.preprocess import network_input
 from nerf_transporter.evaluation.cache import ImageryCache
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec
 from nerf_transporter.experiments.checkpoints import load_checkpoint
+from nerf_transporter.experiments.failures import body_at, pick_pixel
 from nerf_transporter.sim import make_env
 
 
@@ -73,14 +74,11 @@ def scene_scores(
             env.reset(seed=seed)
             colour, height = env.render_orthographic(0.0, 0.0)
             ids, _ = env.render_segmentation_top_down()
-            row, col = np.round(geometry.world_to_pixel(episode["action"]["pick"][:3])).astype(int)
-            on_table = geometry.pixel_inside_image((row, col), ids.shape) and (
-                ids[row, col] == env.table_id
-            )
+            pick = pick_pixel(np.asarray(episode["action"]["pick"][:3]))
             scores.append(
                 {
                     "seed": seed,
-                    "pick_on_table": bool(on_table),
+                    "pick_on_table": body_at(ids, pick) == env.table_id,
                     "imagery": highest_scores(
                         model, imagery["colour"][top], imagery["height"][top], ids, env
                     ),

@@ -146,6 +146,17 @@ def on_image_corner(pixel: tuple[int, int], shape: tuple[int, int]) -> bool:
     return row in (0, shape[0] - 1) and col in (0, shape[1] - 1)
 
 
+def pick_pixel(position: np.ndarray) -> tuple[int, int]:
+    """The top-down (row, col) pixel under a world position (x, y[, z])."""
+    row, col = np.round(geometry.world_to_pixel(position)).astype(int)
+    return int(row), int(col)
+
+
+def body_at(ids: np.ndarray, pixel: tuple[int, int]) -> int | None:
+    """The body id a top-down segmentation shows at a pixel; None outside the image."""
+    return int(ids[pixel]) if geometry.pixel_inside_image(pixel, ids.shape) else None
+
+
 def diagnose_episode(env: RavensEnv, episode: Mapping[str, Any]) -> dict[str, Any]:
     """One recorded episode replayed in `env` (of its task and setting) up to its action."""
     picked_object, aimed, target_tilt, corner, on_table = None, None, None, False, False
@@ -153,11 +164,11 @@ def diagnose_episode(env: RavensEnv, episode: Mapping[str, Any]) -> dict[str, An
         action = {key: _pose(values) for key, values in episode["action"].items()}
         env.reset(seed=episode["seed"])
         ids, _ = env.render_segmentation_top_down()
-        row, col = np.round(geometry.world_to_pixel(action["pick"][0])).astype(int)
-        corner = on_image_corner((row, col), ids.shape)
-        inside = geometry.pixel_inside_image((row, col), ids.shape)
-        picked_object = bool(inside and ids[row, col] == env.task.object_id)
-        on_table = bool(inside and ids[row, col] == env.table_id)
+        pixel = pick_pixel(action["pick"][0])
+        corner = on_image_corner(pixel, ids.shape)
+        body = body_at(ids, pixel)
+        picked_object = body == env.task.object_id
+        on_table = body == env.table_id
         aimed = aim(env.task, env.task.object_pose(env), action)
         target = env.task.target_poses[aimed["target_index"]]
         normal_z = geometry.quat_to_matrix(target[1])[2, 2]

@@ -96,11 +96,10 @@ def median_depth(output: RayOutput, rays: Rays) -> torch.Tensor:
     samples, weights = output.samples, output.weights
     accumulated = samples.exclusive_sums(weights) + weights
     before = samples.ray_sums((accumulated < 0.5).to(weights.dtype)).round().long()
-    counts = samples.bounds[1:] - samples.bounds[:-1]
-    reached = before < counts
-    index = (samples.bounds[:-1] + before).clamp(max=max(len(samples) - 1, 0))
-    sample_t = samples.t[index] if len(samples) else rays.floor
-    return torch.where(reached, sample_t, rays.floor)
+    reached = before < samples.bounds[1:] - samples.bounds[:-1]
+    # one padding distance, where the index of a ray that never reaches one half may point
+    distances = torch.cat([samples.t, samples.t.new_zeros(1)])
+    return torch.where(reached, distances[samples.bounds[:-1] + before], rays.floor)
 
 
 @torch.no_grad()
