@@ -194,6 +194,30 @@ def test_imagery_cached_ahead_is_the_episodes_own_and_is_read_by_it(tmp_path):
         Evaluator(EvaluationSpec(scene=scene, cache_dir=None)).cache_imagery(1)
 
 
+def test_a_rendering_option_is_cached_from_the_same_fit_as_an_evaluation_builds_it(tmp_path):
+    """`cache_imagery(seed, [{"depth": "median"}])` fits once and caches both renderings, the
+    median one under the key, and with the arrays, of an evaluation that builds it itself."""
+    # 60 iterations: enough density that the median and expected heights differ
+    scene = SceneSpec("block-insertion", "normal", "nerf", 0.0125, 6, (60, 80), {"iterations": 60})
+    median = scene.rendered_with({"depth": "median"})
+    with Evaluator(EvaluationSpec(scene=scene, cache_dir=str(tmp_path))) as evaluator:
+        assert evaluator.cache_imagery(1, [{"depth": "median"}]) == 2
+        assert evaluator.cache_imagery(1, [{"depth": "median"}]) == 0
+    policy = FixedPolicy(input_kind="imagery")
+    with Evaluator(EvaluationSpec(scene=median, cache_dir=None)) as evaluator:
+        evaluator.run_episode(policy, 1)
+    built = policy.observations[0]["imagery"]
+    (median_entry,) = tmp_path.rglob(f"1-{EvaluationSpec(scene=median).imagery_key()}.npz")
+    (expected_entry,) = tmp_path.rglob(f"1-{EvaluationSpec(scene=scene).imagery_key()}.npz")
+    with np.load(median_entry) as cached, np.load(expected_entry) as expected:
+        for name in ("colour", "height", "views"):
+            np.testing.assert_array_equal(cached[name], built[name])
+        np.testing.assert_array_equal(expected["colour"], built["colour"])  # one fit
+        assert not np.array_equal(expected["height"], built["height"])  # two renderings
+    with pytest.raises(ValueError, match="iterations changes the fit, not its rendering"):
+        scene.rendered_with({"iterations": 60})
+
+
 def oracle_imagery_spec(cache_dir):
     return EvaluationSpec(
         task="block-insertion", imagery="oracle", pixel_size=0.0125, cache_dir=str(cache_dir)

@@ -38,7 +38,9 @@ def test_cache_imagery_builds_under_the_key_a_mira_cells_test_reads(
     cache = str(tmp_path / "cache")
     specs = []
     monkeypatch.setattr(
-        cache_imagery, "cache_imagery", lambda spec, seeds, progress: specs.append(spec) or (0, 0.0)
+        cache_imagery,
+        "cache_imagery",
+        lambda spec, seeds, renderings, progress: specs.append(spec) or (0, 0.0),
     )
     argv = ["--task", task, "--episodes", "1", "--cache-dir", cache, "--configs", str(CONFIGS)]
     argv += ["--test-setting", test_setting] if test_setting else []

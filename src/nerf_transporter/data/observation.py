@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -146,6 +147,24 @@ class SceneSpec:
             **{**self.imagery_options, "pixel_size": self.pixel_size, "progress": False}
         )
 
+    def rendered_with(self, options: dict[str, Any]) -> SceneSpec:
+        """This scene's `nerf` imagery rendered with other rendering options (`RENDER_OPTIONS`
+        fields, e.g. `{"depth": "median"}`) from the same fit; ValueError for any other option or
+        imagery."""
+        from nerf_transporter.imagery import RENDER_OPTIONS
+
+        if self.imagery != "nerf":
+            raise ValueError(
+                f"rendering options set NeRF imagery's; this is {self.imagery} imagery"
+            )
+        fit_options = sorted(set(options) - set(RENDER_OPTIONS))
+        if fit_options:
+            raise ValueError(
+                f"{', '.join(fit_options)} changes the fit, not its rendering (rendering "
+                f"options: {', '.join(RENDER_OPTIONS)})"
+            )
+        return dataclasses.replace(self, imagery_options={**self.imagery_options, **options})
+
     def imagery_changes(self) -> dict[str, Any]:
         """The entries of `imagery_description` that differ from `REFERENCE_IMAGERY` (the pixel
         size apart: the scene's own), tuples as the lists JSON gives back; {} for oracle imagery."""
@@ -192,22 +211,45 @@ def oracle_views(env: Any, views: np.ndarray, pixel_size: float) -> tuple[np.nda
 
 
 def fitted_views(
-    capture: dict[str, np.ndarray], views: np.ndarray, config: ImageryConfig
-) -> tuple[np.ndarray, np.ndarray]:
-    """A radiance field fitted to the `nerf` rig's `capture` (rgb, intrinsics, cam_to_world),
-    rendered over `views`: colour [V, H, W, 3] and height [V, H, W]."""
-    from nerf_transporter.imagery import fit_scene, render_views
+    capture: dict[str, np.ndarray], views: np.ndarray, configs: Sequence[ImageryConfig]
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """A radiance field fitted to the `nerf` rig's `capture` (rgb, intrinsics, cam_to_world) with
+    the first of `configs`, rendered over `views` with each of them (configs that differ in their
+    rendering options only, `imagery.RENDER_OPTIONS`): colour [V, H, W, 3] and height [V, H, W]."""
+    from nerf_transporter.imagery import RENDER_OPTIONS, fit_scene, render_views
 
-    scene = fit_scene(capture["rgb"], capture["intrinsics"], capture["cam_to_world"], config)
-    return render_views(scene, views, config)
+    ignored = set(RENDER_OPTIONS) | set(IMAGERY_RUNTIME_FIELDS)
+    fit_settings = [
+        {key: value for key, value in dataclasses.asdict(config).items() if key not in ignored}
+        for config in configs
+    ]
+    if any(settings != fit_settings[0] for settings in fit_settings):
+        raise ValueError(
+            "imagery rendered from one fit may differ in its rendering options only "
+            f"({', '.join(RENDER_OPTIONS)})"
+        )
+    scene = fit_scene(capture["rgb"], capture["intrinsics"], capture["cam_to_world"], configs[0])
+    return [render_views(scene, views, config) for config in configs]
+
+
+def scene_imageries(
+    scenes: Sequence[SceneSpec], env: Any, capture: dict
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The imagery of the scene in `env` just captured (`capture`, the observation of reset), as
+    each of `scenes` builds it: the simulator's views for `oracle` imagery, a field fitted once and
+    rendered per scene for `nerf` (scenes that differ in their rendering options only,
+    `SceneSpec.rendered_with`)."""
+    first = scenes[0]
+    if first.imagery == "oracle":
+        if len(scenes) > 1:
+            raise ValueError("oracle imagery is rendered one way only")
+        return [oracle_views(env, first.grid, first.pixel_size)]
+    return fitted_views(capture["nerf"], first.grid, [scene.imagery_config() for scene in scenes])
 
 
 def scene_imagery(scene: SceneSpec, env: Any, capture: dict) -> tuple[np.ndarray, np.ndarray]:
-    """The imagery of the scene in `env` just captured (`capture`, the observation of reset), as
-    built: the simulator's views for `oracle` imagery, the fitted field's for `nerf`."""
-    if scene.imagery == "oracle":
-        return oracle_views(env, scene.grid, scene.pixel_size)
-    return fitted_views(capture["nerf"], scene.grid, scene.imagery_config())
+    """The imagery of the scene in `env` just captured, as `scene` builds it (`scene_imageries`)."""
+    return scene_imageries([scene], env, capture)[0]
 
 
 def rounded(colour: np.ndarray, height: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -215,11 +257,22 @@ def rounded(colour: np.ndarray, height: np.ndarray) -> tuple[np.ndarray, np.ndar
     return np.asarray(colour).astype(np.uint8), np.asarray(height).astype(np.float16)
 
 
+def imagery_observations(
+    scenes: Sequence[SceneSpec], env: Any, capture: dict
+) -> list[dict[str, np.ndarray]]:
+    """The imagery an imagery method acts on, as each of `scenes` builds it (`scene_imageries`):
+    the views of the grid with the rounding of the training episodes (height then as float32), and
+    the grid."""
+    imageries = (rounded(*views) for views in scene_imageries(scenes, env, capture))
+    return [
+        {"colour": colour, "height": height.astype(np.float32), "views": scene.grid}
+        for scene, (colour, height) in zip(scenes, imageries, strict=True)
+    ]
+
+
 def imagery_observation(scene: SceneSpec, env: Any, capture: dict) -> dict[str, np.ndarray]:
-    """The imagery an imagery method acts on: the views of the grid with the rounding of the
-    training episodes (height then as float32), and the grid."""
-    colour, height = rounded(*scene_imagery(scene, env, capture))
-    return {"colour": colour, "height": height.astype(np.float32), "views": scene.grid}
+    """The imagery an imagery method acts on, as `scene` builds it (`imagery_observations`)."""
+    return imagery_observations([scene], env, capture)[0]
 
 
 def observation(

@@ -27,7 +27,7 @@ import dataclasses
 import logging
 import os
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -42,6 +42,7 @@ from nerf_transporter.data.observation import (
     SceneConfig,
     SceneSpec,
     imagery_observation,
+    imagery_observations,
     observation,
 )
 from nerf_transporter.evaluation.cache import ImageryCache, config_hash
@@ -346,19 +347,31 @@ class Evaluator:
             imagery = self._build_imagery(env, obs, seed)
         return observation(input_kind, self.spec.scene, env, obs, imagery)
 
-    def cache_imagery(self, seed: int) -> bool:
+    def cache_imagery(self, seed: int, renderings: Sequence[dict[str, Any]] = ()) -> int:
         """Build the imagery of `seed`'s scene into the cache, as an imagery method's episode
-        would before it acts, so that episodes run later only read it. False where it was cached
-        already. The global torch random state is restored afterwards."""
+        would before it acts, so that episodes run later only read it; with `renderings`, also
+        that imagery rendered with each of these rendering options (`SceneSpec.rendered_with`,
+        e.g. `{"depth": "median"}`) from the same fit, each cached under its own key as an
+        evaluation with those imagery options reads it. The number of entries built (0 where all
+        were cached). The global torch random state is restored afterwards."""
         if self.cache is None:
             raise ValueError("cache_imagery needs an imagery cache (the spec's cache_dir is None)")
-        if self._load_imagery(seed) is not None:
-            return False
+        scenes = [self.spec.scene] + [self.spec.scene.rendered_with(r) for r in renderings]
+        specs = [dataclasses.replace(self.spec, scene=scene) for scene in scenes]
+        missing = [
+            spec
+            for spec in specs
+            if self.cache.load(spec.task, spec.setting, seed, spec.imagery_key()) is None
+        ]
+        if not missing:
+            return 0
         with torch.random.fork_rng():
             env = self._env(self._rigs("imagery", cached=False))
             obs, _ = env.reset(seed=seed)
-            self._build_imagery(env, obs, seed)
-        return True
+            built = imagery_observations([spec.scene for spec in missing], env, obs)
+        for spec, imagery in zip(missing, built, strict=True):
+            self.cache.save(spec.task, spec.setting, seed, spec.imagery_key(), imagery)
+        return len(missing)
 
     # -- episodes -----------------------------------------------------------------------------
 

@@ -10,6 +10,9 @@ trained in, whose config is resolved, and `--test-setting` the one a test split 
 Challenging test of a Normal fit is `--test-setting challenging`. Seeds already cached are
 skipped, so an interrupted run resumes; `--reverse` starts at the last seed, so that it meets a test run going
 forward instead of building the same scenes at the same time.
+`--also-render depth=median` caches each scene's imagery rendered that way too, from the same fit
+(a rendering option changes no fit: `imagery.RENDER_OPTIONS`), where `evaluate-checkpoints
+--imagery-option depth=median` reads it.
 """
 
 from __future__ import annotations
@@ -17,10 +20,12 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Sequence
 from typing import Any
 
 from nerf_transporter.console import HelpFormatter, progress_bar
 from nerf_transporter.data.datamodule import RavensDataModule
+from nerf_transporter.data.generate import imagery_option
 from nerf_transporter.evaluation.rollout import DEFAULT_CACHE_DIR, EvaluationSpec, Evaluator
 from nerf_transporter.experiments.run_cell import (
     CellError,
@@ -28,6 +33,7 @@ from nerf_transporter.experiments.run_cell import (
     config_files,
     resolve_config,
 )
+from nerf_transporter.imagery import RENDER_OPTIONS
 from nerf_transporter.sim.registration import TASK_NAMES
 from nerf_transporter.sim.tasks import SETTINGS
 from nerf_transporter.splits import split_seed
@@ -52,16 +58,21 @@ def imagery_spec(
 
 
 def cache_imagery(
-    spec: EvaluationSpec, seeds: list[int], progress: bool = True
+    spec: EvaluationSpec,
+    seeds: list[int],
+    renderings: Sequence[dict[str, Any]] = (),
+    progress: bool = True,
 ) -> tuple[int, float]:
-    """Build the imagery of each seed missing from the cache; (seeds built, seconds taken)."""
+    """Build the imagery of each seed missing from the cache, and with `renderings` that imagery
+    rendered with each of these rendering options from the same fit (`Evaluator.cache_imagery`);
+    (seeds built, seconds taken)."""
     built, start = 0, time.perf_counter()
     with (
         Evaluator(spec) as evaluator,
         progress_bar(len(seeds), f"imagery {spec.task}-{spec.setting}", enabled=progress) as bar,
     ):
         for seed in seeds:
-            built += evaluator.cache_imagery(seed)
+            built += evaluator.cache_imagery(seed, renderings) > 0
             bar.set_postfix(built=built)
             bar.update(1)
     return built, time.perf_counter() - start
@@ -93,6 +104,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--reverse", action="store_true", help="last seed first (to meet a run going forward)"
     )
+    parser.add_argument(
+        "--also-render",
+        type=imagery_option,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="also cache each scene's NeRF imagery rendered with this rendering option, from "
+        f"the same fit (repeatable, one rendering each; options: {', '.join(RENDER_OPTIONS)}), "
+        "under the key `evaluate-checkpoints --imagery-option KEY=VALUE` reads: e.g. "
+        "depth=median builds the default and the median-depth imagery for one fit's cost",
+    )
     add_config_arguments(parser, "the task's, as given to run-cell")
     parser.add_argument("--cache-dir", default=DEFAULT_CACHE_DIR, help="imagery cache")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -107,15 +129,19 @@ def main(argv: list[str] | None = None) -> int:
         files = config_files(args.configs, args.task, args.setting, None) + args.config
         config = resolve_config(files)
         spec = imagery_spec(config, args.split, args.imagery, args.cache_dir, args.test_setting)
-    except (CellError, FileNotFoundError) as error:
+        renderings = [dict([option]) for option in args.also_render]
+        for rendering in renderings:
+            spec.scene.rendered_with(rendering)
+    except (CellError, FileNotFoundError, ValueError) as error:
         print(f"nerf-transporter cache-imagery: {error}", file=sys.stderr)
         return 2
     seeds = [split_seed(args.split, index) for index in range(args.episodes)]
     if args.reverse:
         seeds.reverse()
-    built, seconds = cache_imagery(spec, seeds, progress=not args.no_progress)
+    built, seconds = cache_imagery(spec, seeds, renderings, progress=not args.no_progress)
+    also = "".join(f", also {key}={value}" for key, value in args.also_render)
     print(
-        f"{spec.task}-{spec.setting} {args.split} imagery ({spec.imagery}): {built} of "
+        f"{spec.task}-{spec.setting} {args.split} imagery ({spec.imagery}{also}): {built} of "
         f"{len(seeds)} seeds built in {seconds:.0f} s, {len(seeds) - built} were cached, "
         f"under {args.cache_dir}"
     )

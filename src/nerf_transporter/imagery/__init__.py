@@ -1,6 +1,7 @@
 """Mental imagery: a radiance field fitted to RGB views, rendered as orthographic colour + height views."""
 
 from nerf_transporter.imagery.fit import (
+    RENDER_OPTIONS,
     FittedScene,
     ImageryConfig,
     NonFiniteLossError,
@@ -14,6 +15,7 @@ __all__ = [
     "FittedScene",
     "ImageryConfig",
     "NonFiniteLossError",
+    "RENDER_OPTIONS",
     "fit_scene",
     "height_mae_mm",
     "psnr",

@@ -36,6 +36,9 @@ from nerf_transporter.imagery.samplers import OccupancyGrid
 
 FIELD_TYPES = ("dense", "hash")
 COLOUR_INITS = ("grey", "table")  # ImageryConfig.colour_init
+# ImageryConfig fields that change how the fitted field is rendered, not the fit: imagery that
+# differs in these alone is rendered from one fit (`data.observation.scene_imageries`)
+RENDER_OPTIONS = ("depth",)
 
 
 class NonFiniteLossError(FloatingPointError):
