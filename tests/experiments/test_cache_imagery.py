@@ -58,7 +58,7 @@ def test_bad_requests_are_refused_with_the_reason(tmp_path, capsys):
         )
     assert "--test-setting is the test split's" in capsys.readouterr().err
     argv = ["--task", "block-insertion", "--configs", str(REPO / "configs")]
-    assert cache_imagery.main([*argv, "--also-render", "iterations=800"]) == 2
+    assert cache_imagery.main([*argv, "--also-render", "depth=median,iterations=800"]) == 2
     assert "iterations changes the fit, not its rendering" in capsys.readouterr().err
     assert cache_imagery.main([*argv, "--imagery", "oracle", "--also-render", "depth=median"]) == 2
     assert "rendering options set NeRF imagery's" in capsys.readouterr().err

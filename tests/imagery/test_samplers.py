@@ -110,9 +110,12 @@ def test_rendering_matches_a_dense_reference():
     occupancy = OccupancyGrid((10, 20, 7))
     settings = MarchSettings(SEGMENT, 4, weight_threshold=0.0)
     colour, depth = render_rays(field, floor, occupancy, rays, settings)
-    _, median = render_rays(field, floor, occupancy, rays, settings, depth="median")
+    median_colour, median = render_rays(
+        field, floor, occupancy, rays, settings, depth="median", colour="median"
+    )
     samples = occupied_samples(rays, occupancy, SEGMENT, 4)
     expected_colour, expected_depth, expected_median = [], [], []
+    expected_median_colour = []
     with torch.no_grad():
         for r in range(len(rays)):
             t = samples.t[samples.ray == r]
@@ -129,14 +132,22 @@ def test_rendering_matches_a_dense_reference():
             # the median: the first sample whose accumulated weight reaches one half, else the floor
             reached = torch.nonzero(torch.cumsum(weights, 0) >= 0.5)
             expected_median.append(t[reached[0, 0]] if len(reached) else rays.floor[r])
+            # its colour: the field's at that sample, else the floor's where the ray meets it
+            surface = rays.origins[r] + expected_median[-1] * rays.directions[r]
+            expected_median_colour.append(
+                field.colour(surface[None])[0] if len(reached) else floor(surface[None])[0]
+            )
     assert torch.allclose(colour, torch.stack(expected_colour), atol=1e-5)
     assert torch.allclose(depth, torch.stack(expected_depth), atol=1e-5)
     expected_median = torch.stack(expected_median)
     assert torch.equal(median, expected_median)
     # this random field has rays of each kind: the median on a sample, and on the floor
     assert 0 < int((expected_median == rays.floor).sum()) < len(rays)
+    assert torch.allclose(median_colour, torch.stack(expected_median_colour), atol=1e-6)
     with pytest.raises(ValueError, match="unknown depth estimate 'mode'"):
         render_rays(field, floor, occupancy, rays, settings, depth="mode")
+    with pytest.raises(ValueError, match="unknown colour estimate 'mode'"):
+        render_rays(field, floor, occupancy, rays, settings, colour="mode")
 
 
 @pytest.mark.parametrize(("device", "expected"), [("cpu", 1 << 16), ("cuda", 1 << 19)])
@@ -151,3 +162,5 @@ def test_an_unknown_depth_estimate_is_refused_by_the_config():
     assert ImageryConfig(depth="median").depth == "median"
     with pytest.raises(ValueError, match="unknown depth 'mode'"):
         ImageryConfig(depth="mode")
+    with pytest.raises(ValueError, match="unknown colour 'mode'"):
+        ImageryConfig(colour="mode")

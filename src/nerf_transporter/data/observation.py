@@ -38,7 +38,12 @@ IMAGERY_RUNTIME_FIELDS = ("device", "progress", "threads", "render_batch")
 # imagery settings that enter a description only where they differ from these values (every
 # dataset, cache entry and cell was built under them before the setting existed), so that those
 # keep their identities
-IMAGERY_OPTIONS_BY_DEFAULT = {"colour_init": "grey", "distortion_weight": 0.0, "depth": "expected"}
+IMAGERY_OPTIONS_BY_DEFAULT = {
+    "colour_init": "grey",
+    "distortion_weight": 0.0,
+    "depth": "expected",
+    "colour": "expected",
+}
 # The NeRF imagery every dataset, cache entry and cell was built with until the table-colour start
 # became the default (the description of `ImageryConfig()` as it stood, pixel size apart): the
 # reference that names imagery changes (`SceneSpec.imagery_changes`). A dataset of other settings

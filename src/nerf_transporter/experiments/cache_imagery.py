@@ -78,6 +78,16 @@ def cache_imagery(
     return built, time.perf_counter() - start
 
 
+def rendering(text: str) -> dict[str, Any]:
+    """`--also-render KEY=VALUE[,KEY=VALUE]` -> the rendering's options."""
+    try:
+        return dict(imagery_option(pair) for pair in text.split(","))
+    except argparse.ArgumentTypeError as error:
+        raise argparse.ArgumentTypeError(
+            str(error).replace("--imagery-option", "each pair")
+        ) from None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="nerf-transporter cache-imagery",
@@ -106,13 +116,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--also-render",
-        type=imagery_option,
+        type=rendering,
         action="append",
         default=[],
-        metavar="KEY=VALUE",
-        help="also cache each scene's NeRF imagery rendered with this rendering option, from "
+        metavar="KEY=VALUE[,KEY=VALUE]",
+        help="also cache each scene's NeRF imagery rendered with these rendering options, from "
         f"the same fit (repeatable, one rendering each; options: {', '.join(RENDER_OPTIONS)}), "
-        "under the key `evaluate-checkpoints --imagery-option KEY=VALUE` reads: e.g. "
+        "under the key `evaluate-checkpoints --imagery-option KEY=VALUE ...` reads: e.g. "
         "depth=median builds the default and the median-depth imagery for one fit's cost",
     )
     add_config_arguments(parser, "the task's, as given to run-cell")
@@ -129,17 +139,19 @@ def main(argv: list[str] | None = None) -> int:
         files = config_files(args.configs, args.task, args.setting, None) + args.config
         config = resolve_config(files)
         spec = imagery_spec(config, args.split, args.imagery, args.cache_dir, args.test_setting)
-        renderings = [dict([option]) for option in args.also_render]
-        for rendering in renderings:
-            spec.scene.rendered_with(rendering)
+        for options in args.also_render:
+            spec.scene.rendered_with(options)
     except (CellError, FileNotFoundError, ValueError) as error:
         print(f"nerf-transporter cache-imagery: {error}", file=sys.stderr)
         return 2
     seeds = [split_seed(args.split, index) for index in range(args.episodes)]
     if args.reverse:
         seeds.reverse()
-    built, seconds = cache_imagery(spec, seeds, renderings, progress=not args.no_progress)
-    also = "".join(f", also {key}={value}" for key, value in args.also_render)
+    built, seconds = cache_imagery(spec, seeds, args.also_render, progress=not args.no_progress)
+    also = "".join(
+        ", also " + ",".join(f"{key}={value}" for key, value in options.items())
+        for options in args.also_render
+    )
     print(
         f"{spec.task}-{spec.setting} {args.split} imagery ({spec.imagery}{also}): {built} of "
         f"{len(seeds)} seeds built in {seconds:.0f} s, {len(seeds) - built} were cached, "

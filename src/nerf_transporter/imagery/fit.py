@@ -27,6 +27,7 @@ from nerf_transporter.imagery.rays import (
     perspective_rays,
 )
 from nerf_transporter.imagery.render import (
+    COLOUR_ESTIMATES,
     DEPTH_ESTIMATES,
     MarchSettings,
     render_rays,
@@ -38,7 +39,7 @@ FIELD_TYPES = ("dense", "hash")
 COLOUR_INITS = ("grey", "table")  # ImageryConfig.colour_init
 # ImageryConfig fields that change how the fitted field is rendered, not the fit: imagery that
 # differs in these alone is rendered from one fit (`data.observation.scene_imageries`)
-RENDER_OPTIONS = ("depth",)
+RENDER_OPTIONS = ("depth", "colour")
 
 
 class NonFiniteLossError(FloatingPointError):
@@ -97,6 +98,9 @@ class ImageryConfig:
     # (where a ray's accumulated opacity reaches one half; `render.median_depth`). Rendering only:
     # the fit is the same either way
     depth: str = "expected"
+    # the rendered views' colour: "expected" (the rays' weighted mean colour) or "median" (the
+    # field's colour where the median depth lies; `render.median_colour`). Rendering only
+    colour: str = "expected"
     final_learning_rate_factor: float = 0.1  # exponential decay of the learning rate to this factor
     pixel_size: float = geometry.PIXEL_SIZE  # of the rendered orthographic views
     render_batch: int = (
@@ -110,6 +114,8 @@ class ImageryConfig:
             raise ValueError(f"unknown field type {self.field!r}; expected one of {FIELD_TYPES}")
         if self.depth not in DEPTH_ESTIMATES:
             raise ValueError(f"unknown depth {self.depth!r}; expected one of {DEPTH_ESTIMATES}")
+        if self.colour not in COLOUR_ESTIMATES:
+            raise ValueError(f"unknown colour {self.colour!r}; expected one of {COLOUR_ESTIMATES}")
         if self.colour_init not in COLOUR_INITS:
             raise ValueError(
                 f"unknown colour_init {self.colour_init!r}; expected one of {COLOUR_INITS}"
@@ -158,9 +164,9 @@ class FittedScene(nn.Module):
         return self.floor.image.device
 
     def render(
-        self, rays: Rays, settings: MarchSettings, depth: str = "expected"
+        self, rays: Rays, settings: MarchSettings, depth: str = "expected", colour: str = "expected"
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        return render_rays(self.field, self.floor, self.occupancy, rays, settings, depth)
+        return render_rays(self.field, self.floor, self.occupancy, rays, settings, depth, colour)
 
 
 def resolve_device(name: str = "auto") -> torch.device:
@@ -392,7 +398,9 @@ def render_views(
     batch = config.render_rays_per_call(scene.device)
     colour_parts, height_parts = [], []
     for start in range(0, len(rays), batch):
-        colour, depth = scene.render(rays[start : start + batch], settings, config.depth)
+        colour, depth = scene.render(
+            rays[start : start + batch], settings, config.depth, config.colour
+        )
         colour_parts.append(colour.clamp(0.0, 1.0).mul(255.0).round().to(torch.uint8))
         height_parts.append(depth_to_height(depth))
     colours = torch.cat(colour_parts).view(len(views), rows, cols, 3).cpu().numpy()

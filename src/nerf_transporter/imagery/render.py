@@ -88,18 +88,40 @@ def render_rays_train(
 
 
 DEPTH_ESTIMATES = ("expected", "median")
+COLOUR_ESTIMATES = ("expected", "median")
+
+
+def _median_sample(output: RayOutput) -> tuple[torch.Tensor, torch.Tensor]:
+    """([R] bool, [R] long): whether each ray's accumulated weight reaches one half at one of its
+    samples, and that first sample's packed index (a padding index where it does not)."""
+    samples, weights = output.samples, output.weights
+    accumulated = samples.exclusive_sums(weights) + weights
+    before = samples.ray_sums((accumulated < 0.5).to(weights.dtype)).round().long()
+    reached = before < samples.bounds[1:] - samples.bounds[:-1]
+    return reached, samples.bounds[:-1] + before
 
 
 def median_depth(output: RayOutput, rays: Rays) -> torch.Tensor:
     """[R] the distance of each ray's first sample where its accumulated weight reaches one half,
     or the floor's where the samples' weights sum to less (the floor then holds the median)."""
-    samples, weights = output.samples, output.weights
-    accumulated = samples.exclusive_sums(weights) + weights
-    before = samples.ray_sums((accumulated < 0.5).to(weights.dtype)).round().long()
-    reached = before < samples.bounds[1:] - samples.bounds[:-1]
+    reached, index = _median_sample(output)
     # one padding distance, where the index of a ray that never reaches one half may point
-    distances = torch.cat([samples.t, samples.t.new_zeros(1)])
-    return torch.where(reached, distances[samples.bounds[:-1] + before], rays.floor)
+    distances = torch.cat([output.samples.t, output.samples.t.new_zeros(1)])
+    return torch.where(reached, distances[index], rays.floor)
+
+
+def median_colour(
+    field: RadianceField, floor: FloorMap, output: RayOutput, rays: Rays
+) -> torch.Tensor:
+    """[R, 3] the field's colour at each ray's median sample (`median_depth`'s), or the floor's
+    where the ray never reaches one half: a surface's colour, not a blend along the ray, so that a
+    pixel at an object's edge takes the object's colour or the table's rather than a mix."""
+    reached, _ = _median_sample(output)
+    points = torch.addcmul(rays.origins, median_depth(output, rays)[:, None], rays.directions)
+    colour = floor(points)
+    if bool(reached.any()):
+        colour[reached] = field.colour(points[reached])
+    return colour
 
 
 @torch.no_grad()
@@ -110,15 +132,19 @@ def render_rays(
     rays: Rays,
     settings: MarchSettings,
     depth: str = "expected",
+    colour: str = "expected",
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Deterministic rendering at the stratum centres -> (colour [R, 3], depth [R]); `depth` is
-    "expected" (the weights' mean distance) or "median" (`median_depth`)."""
+    "expected" (the weights' mean distance) or "median" (`median_depth`), `colour` "expected" (the
+    weights' mean colour) or "median" (`median_colour`)."""
     if depth not in DEPTH_ESTIMATES:
         raise ValueError(f"unknown depth estimate {depth!r}; expected one of {DEPTH_ESTIMATES}")
+    if colour not in COLOUR_ESTIMATES:
+        raise ValueError(f"unknown colour estimate {colour!r}; expected one of {COLOUR_ESTIMATES}")
     samples = occupied_samples(
         rays, occupancy, settings.segment_length, settings.samples_per_segment
     )
     output = _composite(field, floor, rays, samples, settings)
-    if depth == "median":
-        return output.colour, median_depth(output, rays)
-    return output.colour, output.depth
+    colours = median_colour(field, floor, output, rays) if colour == "median" else output.colour
+    depths = median_depth(output, rays) if depth == "median" else output.depth
+    return colours, depths
