@@ -357,11 +357,14 @@ class Evaluator:
         if self.cache is None:
             raise ValueError("cache_imagery needs an imagery cache (the spec's cache_dir is None)")
         scenes = [self.spec.scene] + [self.spec.scene.rendered_with(r) for r in renderings]
-        specs = [dataclasses.replace(self.spec, scene=scene) for scene in scenes]
+        specs = {
+            spec.imagery_key(): spec
+            for spec in (dataclasses.replace(self.spec, scene=scene) for scene in scenes)
+        }
         missing = [
             spec
-            for spec in specs
-            if self.cache.load(spec.task, spec.setting, seed, spec.imagery_key()) is None
+            for key, spec in specs.items()
+            if self.cache.load(spec.task, spec.setting, seed, key) is None
         ]
         if not missing:
             return 0
