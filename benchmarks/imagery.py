@@ -30,14 +30,16 @@ simulator the grid's height MAE and PSNR by view tilt (the view's axis from the 
 the workspace (the pixels whose true surface lies over it, those mira places at) and on object
 pixels (those of them whose true surface stands over 5 mm above the table in the world), and
 PSNR at the true colour's edges and off them (`colour_edges`: outlines, where a radiance field
-blurs; `view_errors`). The steepest views' image borders see past the workspace, where the simulator and
+blurs; `view_errors`), and the top-down view's object footprint against the simulator's (the
+pixels over 5 mm it adds and misses, and their IoU: `footprint_errors`). The steepest views' image borders see past the workspace, where the simulator and
 the NeRF's floor disagree by up to metres: the grid's all-pixel figure (height_mae_grid_mm) counts
 them, the per-tilt ones do not. Times are wall seconds, and also process CPU seconds (fit_cpu_s,
 render_cpu_s, and their sums fit_render_s, fit_render_cpu_s), steadier than wall time on a shared
 machine (meaningless for GPU work, which they miss). The first line names the device (GPU name, or
 CPU model and torch threads) and the torch version. With --json the last line is one JSON object
 with the medians (the times, psnr_db, height_mae_mm, object_height_mae_mm; with the simulator
-height_mae_grid_mm and the per-bin medians height_mae_by_view_tilt_mm, psnr_by_view_tilt_db,
+height_mae_grid_mm, object_footprint_extra_px, object_footprint_missing_px,
+object_footprint_iou and the per-bin medians height_mae_by_view_tilt_mm, psnr_by_view_tilt_db,
 object_height_mae_by_view_tilt_mm, object_psnr_by_view_tilt_db, edge_psnr_by_view_tilt_db and
 flat_psnr_by_view_tilt_db), the device fields and per_scene (with --cached: no times, no device,
 and the scene count as episodes).
@@ -70,7 +72,7 @@ from nerf_transporter.imagery import (
     render_views,
     resolve_device,
 )
-from nerf_transporter.imagery.metrics import OBJECT_HEIGHT, colour_edges
+from nerf_transporter.imagery.metrics import OBJECT_HEIGHT, colour_edges, footprint_errors
 from nerf_transporter.methods.mira import over_workspace
 from nerf_transporter.sim import cameras
 
@@ -221,8 +223,8 @@ def score_grid(
     pixel_size: float,
 ) -> dict:
     """The figures of imagery [V, ...] of view grid `grid` against the true views [V, ...]: PSNR
-    of the top-down view and over the grid, height MAE (top-down, its objects, the grid) and the
-    per-tilt means of `BY_VIEW_TILT`."""
+    of the top-down view and over the grid, height MAE (top-down, its objects, the grid), the
+    top-down objects' footprint (`footprint_errors`) and the per-tilt means of `BY_VIEW_TILT`."""
     top = geometry.top_down_view_index(grid)
     psnrs = [psnr(colour[v], truth_colour[v]) for v in range(len(grid))]
     overall, on_objects = height_mae_mm(height[top], truth_height[top])
@@ -242,12 +244,14 @@ def score_grid(
         key: mean_by_view_tilt(grid, [errors[name] for errors in per_view])
         for key, name, _, _ in BY_VIEW_TILT
     }
+    footprint = footprint_errors(height[top], truth_height[top])
     return {
         "psnr_db": psnrs[top],
         "psnr_grid_db": float(np.mean(psnrs)),
         "height_mae_mm": overall,
         "object_height_mae_mm": on_objects,
         "height_mae_grid_mm": float(np.mean(grid_errors)),
+        **{f"object_footprint_{key}": value for key, value in footprint.items()},
         **by_tilt,
     }
 
@@ -371,7 +375,15 @@ def summarise(per_scene: list[dict], keys: tuple[str, ...], by_tilt: bool) -> di
     return summary
 
 
-SCORE_KEYS = ("psnr_db", "height_mae_mm", "object_height_mae_mm", "height_mae_grid_mm")
+SCORE_KEYS = (
+    "psnr_db",
+    "height_mae_mm",
+    "object_height_mae_mm",
+    "height_mae_grid_mm",
+    "object_footprint_extra_px",
+    "object_footprint_missing_px",
+    "object_footprint_iou",
+)
 
 
 def score_cache(

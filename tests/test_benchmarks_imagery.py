@@ -135,6 +135,8 @@ def test_cached_imagery_is_scored_against_the_simulators_with_its_edges_apart(tm
     assert script.main([*argv, "--imagery-option", "iterations=800", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert summary["episodes"] == 1 and summary["height_mae_mm"] == 0.0
+    assert summary["object_footprint_iou"] == 1.0  # the top-down block, neither fatter nor thinner
+    assert summary["object_footprint_extra_px"] == summary["object_footprint_missing_px"] == 0
     edge, flat = summary["edge_psnr_by_view_tilt_db"], summary["flat_psnr_by_view_tilt_db"]
     assert list(edge) == list(flat) == ["0-10", "10-20", "20-30", "30-40", "40-90"]
     assert list(edge.values()) == pytest.approx([20 * np.log10(255 / 30)] * 5)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from nerf_transporter.imagery import height_mae_mm, psnr
-from nerf_transporter.imagery.metrics import colour_edges
+from nerf_transporter.imagery.metrics import colour_edges, footprint_errors
 
 
 def test_psnr_of_a_one_level_error_everywhere():
@@ -44,3 +44,16 @@ def test_colour_edges_mark_an_outline_not_the_surfaces_either_side():
 def test_colour_edges_need_a_colour_image():
     with pytest.raises(ValueError, match=r"\[H, W, 3\] colour image"):
         colour_edges(np.zeros((20, 30), np.uint8))
+
+
+def test_the_footprint_counts_the_object_pixels_added_and_missed():
+    truth = np.zeros((40, 40), np.float32)
+    truth[10:31, 10:31] = 0.03  # a 21 x 21 px block, 3 cm tall
+    fatter = np.zeros_like(truth)
+    fatter[9:32, 9:32] = 0.03  # one pixel all round: 23 x 23
+    fatter[20, 20] = 0.004  # a hole, under the 5 mm that makes an object pixel
+    errors = footprint_errors(fatter, truth)
+    assert errors == {"extra_px": 23 * 23 - 21 * 21, "missing_px": 1, "iou": 440 / 529}
+    assert np.isnan(footprint_errors(np.zeros_like(truth), np.zeros_like(truth))["iou"])
+    with pytest.raises(ValueError, match="shape mismatch"):
+        footprint_errors(truth[:10], truth)

@@ -38,6 +38,25 @@ def height_mae_mm(
     return overall, on_objects
 
 
+def footprint_errors(
+    prediction: np.ndarray, target: np.ndarray, object_height: float = OBJECT_HEIGHT
+) -> dict[str, float]:
+    """How a top-down height image's objects (pixels above `object_height`) cover the target's:
+    the pixels it adds (`extra_px`), those it leaves out (`missing_px`) and the intersection over
+    union (`iou`; NaN where neither has an object). A radiance field's objects come out fatter
+    than they are (docs/imagery.md, "The median colour, and renderings cached from one fit")."""
+    prediction, target = np.asarray(prediction), np.asarray(target)
+    if prediction.shape != target.shape:
+        raise ValueError(f"shape mismatch: {prediction.shape} vs {target.shape}")
+    predicted, true = prediction > object_height, target > object_height
+    union = int((predicted | true).sum())
+    return {
+        "extra_px": float((predicted & ~true).sum()),
+        "missing_px": float((true & ~predicted).sum()),
+        "iou": float((predicted & true).sum()) / union if union else float("nan"),
+    }
+
+
 def colour_edges(image: np.ndarray, gradient: float = EDGE_GRADIENT, width: int = 1) -> np.ndarray:
     """Boolean mask [H, W] of the pixels at colour edges of a uint8 image [H, W, 3]: where the
     grey level (the channels' mean) changes by more than `gradient` a pixel (central differences),
