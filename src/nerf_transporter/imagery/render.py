@@ -7,7 +7,8 @@ to the same plane, whose colour is the floor map clamped at its border. The dept
 termination distance (floor included) or, where asked, the median one: where the ray's accumulated
 opacity first reaches one half, so that a faint layer in front of a surface (a floater, a haze over
 a textureless hollow) or a ray grazing an edge does not pull the depth between two surfaces. For
-orthographic rays it converts to height.
+orthographic rays it converts to height. The colour is likewise the rays' weighted mean or, where
+asked, the field's colour at the median depth (a surface's colour, not a blend along the ray).
 
 All samples of a batch of rays are evaluated in one pass, packed ray after ray: the fitted
 surfaces are rarely opaque enough for early ray termination to pay for marching in rounds, and the
