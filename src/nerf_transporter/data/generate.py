@@ -438,9 +438,7 @@ def imagery_option(text: str) -> tuple[str, Any]:
     key, sep, value = text.partition("=")
     fields = {f.name: f for f in dataclasses.fields(ImageryConfig)}
     if not sep or key not in fields:
-        raise argparse.ArgumentTypeError(
-            f"--imagery-option expects KEY=VALUE with KEY one of: {', '.join(fields)}"
-        )
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE with KEY one of: {', '.join(fields)}")
     default = getattr(ImageryConfig(), key)
     if isinstance(default, bool):
         return key, value.lower() in ("1", "true", "yes")

@@ -361,19 +361,19 @@ class Evaluator:
             spec.imagery_key(): spec
             for spec in (dataclasses.replace(self.spec, scene=scene) for scene in scenes)
         }
-        missing = [
-            spec
+        missing = {
+            key: spec
             for key, spec in specs.items()
             if self.cache.load(spec.task, spec.setting, seed, key) is None
-        ]
+        }
         if not missing:
             return 0
         with torch.random.fork_rng():
             env = self._env(self._rigs("imagery", cached=False))
             obs, _ = env.reset(seed=seed)
-            built = imagery_observations([spec.scene for spec in missing], env, obs)
-        for spec, imagery in zip(missing, built, strict=True):
-            self.cache.save(spec.task, spec.setting, seed, spec.imagery_key(), imagery)
+            built = imagery_observations([spec.scene for spec in missing.values()], env, obs)
+        for (key, spec), imagery in zip(missing.items(), built, strict=True):
+            self.cache.save(spec.task, spec.setting, seed, key, imagery)
         return len(missing)
 
     # -- episodes -----------------------------------------------------------------------------

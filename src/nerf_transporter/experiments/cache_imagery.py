@@ -80,12 +80,7 @@ def cache_imagery(
 
 def rendering(text: str) -> dict[str, Any]:
     """`--also-render KEY=VALUE[,KEY=VALUE]` -> the rendering's options."""
-    try:
-        return dict(imagery_option(pair) for pair in text.split(","))
-    except argparse.ArgumentTypeError as error:
-        raise argparse.ArgumentTypeError(
-            str(error).replace("--imagery-option", "each pair")
-        ) from None
+    return dict(imagery_option(pair) for pair in text.split(","))
 
 
 def main(argv: list[str] | None = None) -> int:

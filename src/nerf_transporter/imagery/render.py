@@ -92,33 +92,27 @@ DEPTH_ESTIMATES = ("expected", "median")
 COLOUR_ESTIMATES = ("expected", "median")
 
 
-def _median_sample(output: RayOutput) -> tuple[torch.Tensor, torch.Tensor]:
-    """([R] bool, [R] long): whether each ray's accumulated weight reaches one half at one of its
-    samples, and that first sample's packed index (a padding index where it does not)."""
+def median_depth(output: RayOutput, rays: Rays) -> tuple[torch.Tensor, torch.Tensor]:
+    """([R] bool, [R]) whether each ray's accumulated weight reaches one half at one of its
+    samples, and the distance of the first such sample, or the floor's where the samples' weights
+    sum to less (the floor then holds the median)."""
     samples, weights = output.samples, output.weights
     accumulated = samples.exclusive_sums(weights) + weights
     before = samples.ray_sums((accumulated < 0.5).to(weights.dtype)).round().long()
     reached = before < samples.bounds[1:] - samples.bounds[:-1]
-    return reached, samples.bounds[:-1] + before
-
-
-def median_depth(output: RayOutput, rays: Rays) -> torch.Tensor:
-    """[R] the distance of each ray's first sample where its accumulated weight reaches one half,
-    or the floor's where the samples' weights sum to less (the floor then holds the median)."""
-    reached, index = _median_sample(output)
     # one padding distance, where the index of a ray that never reaches one half may point
-    distances = torch.cat([output.samples.t, output.samples.t.new_zeros(1)])
-    return torch.where(reached, distances[index], rays.floor)
+    distances = torch.cat([samples.t, samples.t.new_zeros(1)])
+    return reached, torch.where(reached, distances[samples.bounds[:-1] + before], rays.floor)
 
 
 def median_colour(
-    field: RadianceField, floor: FloorMap, output: RayOutput, rays: Rays
+    field: RadianceField, floor: FloorMap, rays: Rays, reached: torch.Tensor, depth: torch.Tensor
 ) -> torch.Tensor:
-    """[R, 3] the field's colour at each ray's median sample (`median_depth`'s), or the floor's
-    where the ray never reaches one half: a surface's colour, not a blend along the ray, so that a
-    pixel at an object's edge takes the object's colour or the table's rather than a mix."""
-    reached, _ = _median_sample(output)
-    points = torch.addcmul(rays.origins, median_depth(output, rays)[:, None], rays.directions)
+    """[R, 3] the field's colour at each ray's median depth (`median_depth`'s `reached`, `depth`),
+    or the floor's where the ray never reaches one half: a surface's colour, not a blend along the
+    ray, so that a pixel at an object's edge takes the object's colour or the table's rather than
+    a mix."""
+    points = torch.addcmul(rays.origins, depth[:, None], rays.directions)
     colour = floor(points)
     if bool(reached.any()):
         colour[reached] = field.colour(points[reached])
@@ -146,6 +140,11 @@ def render_rays(
         rays, occupancy, settings.segment_length, settings.samples_per_segment
     )
     output = _composite(field, floor, rays, samples, settings)
-    colours = median_colour(field, floor, output, rays) if colour == "median" else output.colour
-    depths = median_depth(output, rays) if depth == "median" else output.depth
-    return colours, depths
+    if "median" not in (depth, colour):
+        return output.colour, output.depth
+    reached, median = median_depth(output, rays)
+    if colour == "median":
+        return median_colour(field, floor, rays, reached, median), (
+            median if depth == "median" else output.depth
+        )
+    return output.colour, median
